@@ -1,0 +1,40 @@
+# Two commands on a fresh machine: `make demo` and `make test`. Both install what they need
+# into .venv first (system libraries through apt-get when missing).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT := out
+DATA := ../shared/data
+
+.PHONY: install demo test bench clean system-deps
+
+install: $(STAMP)
+
+# open3d links libusb; pyvista's off-screen screenshots use xvfb when VTK has no OSMesa/EGL
+system-deps:
+	@if ! ldconfig -p | grep -q libusb-1.0.so.0 || ! command -v xvfb-run >/dev/null; then \
+		echo "installing libusb-1.0-0 and xvfb with apt-get"; \
+		(apt-get update -qq && apt-get install -y -qq libusb-1.0-0 xvfb >/dev/null) \
+		|| echo "warning: apt-get failed: install libusb-1.0-0 and xvfb by hand"; \
+	fi
+
+$(STAMP): setup.cfg pyproject.toml | system-deps
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip setuptools wheel
+	# the local CPU build first, so that the neural extra (torch>=2.2) never pulls CUDA wheels
+	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q -e '.[all,dev]'
+	touch $@
+
+demo: $(STAMP)
+	mkdir -p $(OUT)
+	$(BIN)/morphable sample --model sfm --identity-std 1 --expression happiness=0.8 --out $(OUT)/sample.obj
+	$(BIN)/morphable info --model sfm --json > $(OUT)/model.json
+	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(OUT) .pytest_cache

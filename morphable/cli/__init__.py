@@ -1,0 +1,46 @@
+"""The ``morphable`` command line: thin wrappers that parse arguments, call the API and write
+files atomically. Bad input ends with one line on stderr and exit status 2, never a traceback.
+
+Each command lives in its own module here with ``add_parser(subparsers)`` and ``run(args)``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from ..errors import MorphableError
+
+COMMANDS = ["info", "sample", "convert", "download"]
+"""Module names under ``morphable.cli``; the order is the order of ``morphable --help``."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="morphable", description="3D morphable face model toolkit")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars, warnings only")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        module = importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
+        p = module.add_parser(sub)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="%(levelname)s: %(message)s")
+    try:
+        return args._run(args) or 0
+    except MorphableError as e:
+        print(f"morphable {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"morphable {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""Mesh files through trimesh: export (OBJ with UVs, PLY, STL...) and reading of scans."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .atomic import atomic_path
+
+__all__ = ["write_mesh", "read_mesh"]
+
+
+def _uv_unwelded(vertices, triangles, uv, triangle_uv):
+    """Split vertices along UV seams so that each output vertex has one UV (OBJ/PLY need it)."""
+    pairs = np.stack([triangles.ravel(), triangle_uv.ravel()], 1)
+    unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    return vertices[unique[:, 0]], inverse.reshape(-1, 3), uv[unique[:, 1]]
+
+
+def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colors=None) -> Path:
+    """Write a triangle mesh; the format follows the suffix (.obj, .ply, .stl, .off, .glb).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, mm
+    triangles : (F, 3) int
+    uv : (V, 2) or (T, 2) float in [0, 1], optional
+    triangle_uv : (F, 3) int ids into ``uv`` when UVs are not per vertex
+    vertex_colors : (V, 3) or (V, 4) uint8 or float in [0, 1], optional
+
+    The file is written atomically; with per-triangle UVs, vertices on UV seams are
+    duplicated (vertex order then differs from the model's).
+    """
+    import trimesh
+
+    path = Path(path)
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(triangles, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise InputError(f"{path}: vertices must be a non-empty (V, 3) array")
+    if not np.isfinite(v).all():
+        raise InputError(f"{path}: vertices contain NaN or inf; nothing written")
+    visual = None
+    if uv is not None:
+        uv = np.asarray(uv, dtype=np.float64)
+        if triangle_uv is not None:
+            v, f, uv = _uv_unwelded(v, f, uv, np.asarray(triangle_uv))
+        visual = trimesh.visual.TextureVisuals(uv=uv)
+    mesh = trimesh.Trimesh(v, f, visual=visual, process=False)
+    if vertex_colors is not None and visual is None:
+        mesh.visual.vertex_colors = vertex_colors
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in ("obj", "ply", "stl", "off", "glb", "gltf"):
+        raise InputError(f"{path}: unknown mesh format {path.suffix!r} (.obj .ply .stl .off .glb)")
+    with atomic_path(path) as tmp:
+        if suffix == "obj":
+            text = trimesh.exchange.obj.export_obj(mesh, include_texture=True, include_normals=False)
+            # one file, no material: drop the references to a .mtl that is not written
+            tmp.write_text("".join(ln for ln in text.splitlines(True)
+                                   if not ln.startswith(("mtllib", "usemtl"))))
+        else:
+            mesh.export(tmp, file_type=suffix)
+    return path
+
+
+def read_mesh(path):
+    """Read a mesh file -> trimesh.Trimesh (vertex order kept, no merging).
+
+    Raises InputError naming the file for unreadable files and empty meshes.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False, maintain_order=True)
+    except Exception as e:  # trimesh raises many types for bad files
+        raise InputError(f"{path}: cannot read mesh ({type(e).__name__}: {e})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0 or len(mesh.faces) == 0:
+        raise InputError(f"{path}: empty mesh (no triangles)")
+    if not np.isfinite(mesh.vertices).all():
+        raise InputError(f"{path}: vertices contain NaN or inf")
+    return mesh
