@@ -223,7 +223,7 @@ def read_symmetry(path, n_vertices: int) -> np.ndarray:
     return np.concatenate([ids, np.full(n_vertices - n, -1, dtype=np.int64)])
 
 
-def load_eos(path, name: str = "sfm"):
+def load_eos(path, name: str | None = None):
     """Assemble a :class:`MorphableModel` from an eos model ``.bin`` or ``share/``-style folder.
 
     ``path`` is the model ``.bin`` or a folder holding exactly one; the folder's
@@ -271,4 +271,4 @@ def load_eos(path, name: str = "sfm"):
         landmark_ids=landmark_ids, contour_right=right, contour_left=left,
         uv=m["uv"], triangle_uv=m["triangle_uv"],
         symmetry=read_symmetry(sym[0], V) if sym else None,
-        name=name, source=str(path))
+        name=name or path.stem, source=str(path))

@@ -41,8 +41,8 @@ def save_model_npz(model, path) -> Path:
     return Path(path)
 
 
-def load_model_npz(path):
-    """Read a file written by :func:`save_model_npz` -> MorphableModel."""
+def load_model_npz(path, name: str | None = None):
+    """Read a file written by :func:`save_model_npz` -> MorphableModel (``name`` overrides)."""
     from ..model import MorphableModel
 
     path = Path(path)
@@ -57,7 +57,7 @@ def load_model_npz(path):
                 expression_names=[str(s) for s in d["expression_names"]],
                 expression_kind=str(d["expression_kind"]), landmark_ids=d["landmark_ids"],
                 contour_right=d["contour_right"], contour_left=d["contour_left"],
-                segments=segs, name=str(d["name"]), source=str(path),
+                segments=segs, name=name or str(d["name"]), source=str(path),
                 **{k: d[k] for k in _OPTIONAL if k in d.files})
     except KeyError as e:
         raise InputError(f"{path}: incomplete model npz (missing {e})") from None
