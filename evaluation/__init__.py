@@ -1,0 +1,1 @@
+"""Evaluation of morphable against scans, peers and run time (not imported by ``morphable``)."""

@@ -1,0 +1,183 @@
+"""Ground-truth scans for the Florence protocol: mesh, units and landmarks in iBUG order.
+
+A scan is any OBJ/PLY/STL (textured or not) in any units; its landmarks are 68 iBUG points
+or the 51 inner ones (iBUG 18-68) in menpo ``.ljson``, ``.npy``/``.txt`` (N x 3) or a
+three-column ``.pts``. Units are given or detected from the inter-ocular distance.
+
+Examples
+--------
+>>> scan = load_scan("../shared/data/scans/james/james.obj",
+...                  "../shared/data/scans/james/james.ljson")  # doctest: +SKIP
+>>> scan.units, round(scan.interocular_mm)  # doctest: +SKIP
+('mm', 67)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from morphable.errors import InputError
+from morphable.landmarks import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
+
+__all__ = ["Scan", "load_scan", "read_scan_landmarks", "detect_units", "interocular",
+           "UNITS", "TYPICAL_INTEROCULAR_MM"]
+
+UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+"""Millimetres per unit."""
+TYPICAL_INTEROCULAR_MM = 63.0
+"""Adult distance between the eye centres (about 60-65 mm), used to detect units."""
+
+
+@dataclass
+class Scan:
+    """A face scan in millimetres.
+
+    Attributes
+    ----------
+    vertices : (S, 3) float64, mm
+    triangles : (G, 3) int64
+    landmarks : (68, 3) float64, mm, iBUG order, NaN rows where not given
+    units : str — the file's units (``mm``, ``cm``, ``m``), given or detected
+    source : str — the mesh path
+    uv : (S, 2) float64 per-vertex texture coordinates or None
+    texture : (H, W, 3) float64 in [0, 1] or None
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    landmarks: np.ndarray
+    units: str = "mm"
+    source: str = ""
+    uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
+
+    @property
+    def nose_tip(self) -> np.ndarray:
+        """(3,) mm, iBUG point 31."""
+        return self.landmarks[30]
+
+    @property
+    def interocular_mm(self) -> float:
+        return interocular(self.landmarks)
+
+
+def interocular(landmarks) -> float:
+    """Distance between the two eye centres (means of iBUG 37-42 and 43-48), in the
+    landmarks' units."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    right = np.nanmean(lm[GROUPS["right_eye"]], 0)
+    left = np.nanmean(lm[GROUPS["left_eye"]], 0)
+    return float(np.linalg.norm(left - right))
+
+
+def detect_units(landmarks, source: str = "scan") -> str:
+    """The unit (``mm``, ``cm`` or ``m``) that makes the inter-ocular distance closest to
+    63 mm.
+
+    >>> detect_units(np.r_[np.zeros((36, 3)), np.tile([[0.0, 0, 0]], (6, 1)),
+    ...                    np.tile([[0.064, 0, 0]], (6, 1)), np.zeros((20, 3))])
+    'm'
+    """
+    d = interocular(landmarks)
+    if not np.isfinite(d) or d <= 0:
+        raise InputError(f"{source}: cannot detect units: the eye landmarks are missing or coincide")
+    name = min(UNITS, key=lambda u: abs(np.log(d * UNITS[u] / TYPICAL_INTEROCULAR_MM)))
+    mm = d * UNITS[name]
+    if not 35.0 <= mm <= 110.0:
+        raise InputError(f"{source}: cannot detect units: inter-ocular distance {d:.4g} is not "
+                         f"that of a face in mm, cm or m; pass --scan-units")
+    return name
+
+
+def _read_pts3(path: Path) -> np.ndarray:
+    text = path.read_text()
+    head, _, rest = text.partition("{")
+    body, close, _ = rest.partition("}")
+    if not close:
+        raise InputError(f"{path}: not a .pts file (no {{ ... }} block)")
+    return np.array([[float(x) for x in ln.split()] for ln in body.splitlines() if ln.strip()])
+
+
+def read_scan_landmarks(path) -> np.ndarray:
+    """Read 3D scan landmarks -> (68, 3) float64 in iBUG order, NaN rows where missing.
+
+    68 points are taken in iBUG order, 51 as the inner points (iBUG 18-68); a menpo
+    ``.ljson`` with labels (``chin``, ``leye``, ...) is reordered by its label groups.
+    Units are those of the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such landmark file")
+    suffix = path.suffix.lower()
+    labels = None
+    try:
+        if suffix == ".ljson":
+            from morphable.io.landmarks import read_ljson
+
+            pts, labels = read_ljson(path)
+        elif suffix == ".npy":
+            pts = np.load(path, allow_pickle=False)
+        elif suffix == ".txt":
+            pts = np.loadtxt(path, ndmin=2)
+        elif suffix == ".pts":
+            pts = _read_pts3(path)
+        else:
+            raise InputError(f"{path}: unknown landmark format {suffix!r} (.ljson .npy .txt .pts)")
+    except (OSError, ValueError, UnicodeDecodeError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{path}: cannot read landmarks ({type(e).__name__}: {e})") from None
+    pts = np.asarray(pts, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InputError(f"{path}: expected N x 3 landmarks, got shape {pts.shape}")
+    if labels and len(pts) == N_LANDMARKS and len(labels) > 1:
+        return from_menpo_labels(pts, labels, source=str(path))
+    if len(pts) == N_LANDMARKS:
+        return pts
+    if len(pts) == len(INNER):
+        out = np.full((N_LANDMARKS, 3), np.nan)
+        out[INNER] = pts
+        return out
+    raise InputError(f"{path}: expected 68 or 51 landmarks, got {len(pts)}")
+
+
+def load_scan(path, landmarks, units: str = "auto") -> Scan:
+    """Load a scan and its landmarks, converted to millimetres.
+
+    Parameters
+    ----------
+    path : OBJ, PLY, STL... (anything trimesh reads)
+    landmarks : path of the landmark file (see :func:`read_scan_landmarks`) or a (68, 3) array
+    units : ``"mm"``, ``"cm"``, ``"m"`` or ``"auto"`` (from the inter-ocular distance)
+
+    Returns
+    -------
+    Scan in mm; unreferenced vertices are kept (they do not affect any metric).
+    """
+    from morphable.io.mesh import read_mesh
+
+    mesh = read_mesh(path)
+    lm = (read_scan_landmarks(landmarks) if isinstance(landmarks, (str, Path))
+          else np.asarray(landmarks, dtype=np.float64))
+    where = str(landmarks) if isinstance(landmarks, (str, Path)) else f"{path} landmarks"
+    if lm.shape != (N_LANDMARKS, 3):
+        raise InputError(f"{where}: expected (68, 3) landmarks, got {lm.shape}")
+    if np.isnan(lm[30]).any():
+        raise InputError(f"{where}: the nose tip (iBUG 31) is missing; the crop needs it")
+    if units == "auto":
+        units = detect_units(lm, source=where)
+    if units not in UNITS:
+        raise InputError(f"{path}: unknown units {units!r} (mm, cm, m or auto)")
+    k = UNITS[units]
+    uv = texture = None
+    visual = getattr(mesh, "visual", None)
+    if getattr(visual, "uv", None) is not None and len(visual.uv) == len(mesh.vertices):
+        uv = np.asarray(visual.uv, dtype=np.float64)
+        image = getattr(getattr(visual, "material", None), "image", None)
+        if image is not None:
+            texture = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+    return Scan(vertices=np.asarray(mesh.vertices, dtype=np.float64) * k,
+                triangles=np.asarray(mesh.faces, dtype=np.int64), landmarks=lm * k, units=units,
+                source=str(path), uv=uv, texture=texture)
