@@ -1,0 +1,366 @@
+"""Visibility: per pixel (or texel) the triangle seen and its barycentric coordinates.
+
+Rays are cast with open3d's ``RaycastingScene`` (Embree, CPU, multi-threaded). Only the
+pixels inside the mesh's projected bounding box are cast, and the Embree scene of a mesh is
+cached (keyed by the bytes of its vertices and triangles), so rendering the same mesh from
+many cameras builds it once.
+
+Conventions
+-----------
+- Sample ``(i, j)`` of a visibility computed with ``supersample = s`` lies at image point
+  ``x = (j + 0.5) / s - 0.5``, ``y = (i + 0.5) / s - 0.5`` (pixel centres at integers, as in
+  :mod:`morphable.camera`); ``s = 1`` samples the pixel centres.
+- Barycentric ``(w0, w1, w2)`` weight the triangle's corners in the order of ``triangles``;
+  they are 3D (object-space) barycentrics, so interpolating any vertex attribute with them is
+  perspective-correct.
+- Depth is ``-Zc`` in mm (the camera module's depth), ``inf`` on background samples.
+- Both sides of a triangle are visible (no back-face culling).
+"""
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh"]
+
+_SCENES: "OrderedDict[bytes, object]" = OrderedDict()
+_SCENE_CACHE_SIZE = 4
+_UV_TABLES: "OrderedDict[bytes, Visibility]" = OrderedDict()
+_UV_CACHE_SIZE = 8
+_INVALID = np.iinfo(np.uint32).max  # open3d's RaycastingScene.INVALID_ID
+
+
+@dataclass(eq=False)
+class Visibility:
+    """What each sample of an image (or UV layout) sees.
+
+    Attributes
+    ----------
+    triangle_id : (Hs, Ws) int64
+        Triangle index per sample, -1 on background.
+    barycentric : (Hs, Ws, 3) float32
+        Weights of the triangle's three corners (sum 1), zeros on background.
+    depth : (Hs, Ws) float64, mm
+        ``-Zc`` of the surface point, ``inf`` on background (UV tables: zeros).
+    triangles : (F, 3) int64
+        The triangles that ``triangle_id`` indexes (their corners are what the weights weigh).
+    camera : morphable.camera.Camera or None
+        None for a UV-layout table.
+    supersample : int
+        Samples per pixel along each axis; ``Hs = H * supersample``, ``Ws = W * supersample``.
+    """
+
+    triangle_id: np.ndarray
+    barycentric: np.ndarray
+    depth: np.ndarray
+    triangles: np.ndarray
+    camera: object = None
+    supersample: int = 1
+    _extra: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(Hs, Ws) bool: True where a triangle is seen."""
+        return self.triangle_id >= 0
+
+    @property
+    def shape(self) -> tuple:
+        """(Hs, Ws): the sample grid."""
+        return self.triangle_id.shape
+
+    @property
+    def image_shape(self) -> tuple:
+        """(H, W): the pixel grid (the sample grid divided by ``supersample``)."""
+        s = self.supersample
+        return self.shape[0] // s, self.shape[1] // s
+
+    @cached_property
+    def pixels(self) -> np.ndarray:
+        """(N,) int64 flat indices of the foreground samples (row-major)."""
+        return np.flatnonzero(self.triangle_id.ravel() >= 0)
+
+    @cached_property
+    def weights(self) -> np.ndarray:
+        """(N, 3) barycentric weights of the foreground samples."""
+        return self.barycentric.reshape(-1, 3)[self.pixels]
+
+    def corners(self, triangles=None) -> np.ndarray:
+        """(N, 3) int64 corner ids of the foreground samples' triangles.
+
+        ``triangles`` (F, 3) replaces :attr:`triangles`, e.g. ``triangle_uv`` to look up
+        per-corner texture coordinates.
+        """
+        ids = self.triangle_id.ravel()[self.pixels]
+        return (self.triangles if triangles is None else np.asarray(triangles))[ids]
+
+    def coverage(self) -> np.ndarray:
+        """(H, W) float in [0, 1]: the fraction of each pixel's samples on the mesh."""
+        return self.downsample(self.mask.astype(np.float64))
+
+    def downsample(self, image):
+        """Box-filter a sample-grid image to the pixel grid.
+
+        ``image``: (..., Hs, Ws, C) or (Hs, Ws) numpy array or torch tensor -> (..., H, W, C)
+        or (H, W), the mean of each pixel's ``supersample**2`` samples.
+        """
+        s = self.supersample
+        if s == 1:
+            return image
+        H, W = self.image_shape
+        flat = image.ndim == 2
+        x = image[..., None] if flat else image
+        lead = tuple(x.shape[:-3])
+        x = x.reshape(lead + (H, s, W, s, x.shape[-1]))
+        n = len(lead)
+        out = x.mean(axis=(n + 1, n + 3)) if isinstance(x, np.ndarray) else x.mean(dim=(n + 1, n + 3))
+        return out[..., 0] if flat else out
+
+
+def check_mesh(vertices, triangles, what: str = "mesh"):
+    """Validate a triangle mesh -> (vertices float (V, 3), triangles int64 (F, 3)).
+
+    Raises InputError for empty meshes, bad shapes, out-of-range ids and NaN/inf.
+    """
+    v = np.asarray(vertices)
+    if v.dtype.kind != "f":
+        v = v.astype(np.float64)
+    t = np.asarray(triangles)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise InputError(f"{what}: vertices must be a non-empty (V, 3) array, got {v.shape}")
+    if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
+        raise InputError(f"{what}: triangles must be a non-empty (F, 3) array, got {t.shape}")
+    if t.dtype.kind not in "iu":
+        raise InputError(f"{what}: triangles must be integer vertex ids")
+    t = t.astype(np.int64, copy=False)
+    if t.min() < 0 or t.max() >= len(v):
+        raise InputError(f"{what}: triangle ids out of range [0, {len(v)})")
+    if not np.isfinite(v).all():
+        raise InputError(f"{what}: vertices contain NaN or inf")
+    return v, t
+
+
+def _key(*arrays) -> bytes:
+    h = hashlib.blake2b(digest_size=20)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.data)
+    return h.digest()
+
+
+def _cached(cache: OrderedDict, size: int, key: bytes, make):
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    value = make()
+    cache[key] = value
+    while len(cache) > size:
+        cache.popitem(last=False)
+    return value
+
+
+def _import_open3d():
+    try:
+        import open3d
+    except ImportError:  # pragma: no cover - the raster extra is missing
+        raise InputError("rasterisation needs open3d: pip install 'morphable[raster]'") from None
+    return open3d
+
+
+def scene(vertices, triangles):
+    """The (cached) Embree scene of a mesh in world coordinates (float32).
+
+    ``vertices`` (V, 3) mm, ``triangles`` (F, 3) int -> ``open3d.t.geometry.RaycastingScene``.
+    """
+    o3d = _import_open3d()
+    v32 = np.ascontiguousarray(vertices, dtype=np.float32)
+    t32 = np.ascontiguousarray(triangles, dtype=np.uint32)
+
+    def make():
+        sc = o3d.t.geometry.RaycastingScene()
+        sc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(t32))
+        return sc
+
+    return _cached(_SCENES, _SCENE_CACHE_SIZE, _key(v32, t32), make)
+
+
+def cast(sc, origins, directions):
+    """Cast rays (N, 3) + (N, 3) -> (t_hit (N,) float32, triangle (N,) int64 with -1 for
+    misses, barycentric (N, 3) float32)."""
+    o3d = _import_open3d()
+    rays = np.concatenate([origins, directions], -1).astype(np.float32, copy=False)
+    hit = sc.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))
+    prim = hit["primitive_ids"].numpy()
+    tri = np.where(prim == _INVALID, -1, prim.astype(np.int64))
+    uv = hit["primitive_uvs"].numpy()
+    bary = np.empty(uv.shape[:-1] + (3,), dtype=np.float32)
+    # Embree's (u, v) weight corners 1 and 2: p = (1 - u - v) p0 + u p1 + v p2
+    bary[..., 0] = 1.0 - uv[..., 0] - uv[..., 1]
+    bary[..., 1:] = uv
+    bary[tri < 0] = 0.0
+    return hit["t_hit"].numpy(), tri, bary
+
+
+def _window(camera, cam_points, width, height):
+    """Pixel rectangle (x0, x1, y0, y1), x1/y1 exclusive, that contains the projection."""
+    if camera.kind == "perspective" and (cam_points[:, 2] >= 0).any():
+        return 0, width, 0, height  # points at or behind the camera: no finite bound
+    if camera.kind == "affine":
+        u = camera.principal[0] + camera.scale * cam_points[:, 0]
+        v = camera.principal[1] - camera.scale * cam_points[:, 1]
+    else:
+        k = camera.focal / -cam_points[:, 2]
+        u = camera.principal[0] + k * cam_points[:, 0]
+        v = camera.principal[1] - k * cam_points[:, 1]
+    # a pixel's samples reach half a pixel beyond its centre
+    x0 = int(np.clip(np.floor(u.min() - 0.5), 0, width))
+    x1 = int(np.clip(np.ceil(u.max() + 1.5), 0, width))
+    y0 = int(np.clip(np.floor(v.min() - 0.5), 0, height))
+    y1 = int(np.clip(np.ceil(v.max() + 1.5), 0, height))
+    return x0, x1, y0, y1
+
+
+def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
+    """Cast one ray per sample and record the triangle hit and its barycentrics.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float array, mm, world frame
+    triangles : (F, 3) int array
+    camera : morphable.camera.Camera
+        Affine or perspective; its ``image_size`` (W, H) sets the image.
+    supersample : int
+        Samples per pixel along each axis (antialiasing; 1 = pixel centres).
+
+    Returns
+    -------
+    Visibility on an (H * supersample, W * supersample) grid.
+
+    Raises
+    ------
+    InputError
+        Empty mesh, NaN/inf vertices, bad ids, ``supersample < 1``, or a mesh entirely
+        behind the camera (depth <= 0 for every vertex).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from morphable.camera import Camera
+    >>> square = np.array([[-50., -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]])
+    >>> cam = Camera.looking_at_face(image_size=(64, 48))
+    >>> vis = visibility(square, [[0, 1, 2], [0, 2, 3]], cam)
+    >>> vis.shape, int(vis.mask.sum()), float(vis.depth[24, 32])
+    ((48, 64), 256, 600.0)
+    """
+    from ..camera import Camera
+
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera must be a morphable.camera.Camera, got {type(camera).__name__}")
+    v, t = check_mesh(vertices, triangles)
+    try:
+        s = int(supersample)
+    except (TypeError, ValueError):
+        raise InputError(f"supersample must be an integer >= 1, got {supersample!r}") from None
+    if s < 1 or s != supersample:
+        raise InputError(f"supersample must be an integer >= 1, got {supersample!r}")
+    W, H = camera.image_size
+    Ws, Hs = W * s, H * s
+    pc = camera.to_camera(v.astype(np.float64, copy=False))
+    if (pc[:, 2] >= 0).all():
+        raise InputError("mesh is entirely behind the camera (depth <= 0 for every vertex); "
+                         "check the camera translation and rotation")
+
+    tri_id = np.full((Hs, Ws), -1, dtype=np.int64)
+    bary = np.zeros((Hs, Ws, 3), dtype=np.float32)
+    depth = np.full((Hs, Ws), np.inf)
+    x0, x1, y0, y1 = _window(camera, pc, W, H)
+    if x1 > x0 and y1 > y0:
+        # samples of the pixel window, in image coordinates
+        xs = (np.arange(x0 * s, x1 * s) + 0.5) / s - 0.5
+        ys = (np.arange(y0 * s, y1 * s) + 0.5) / s - 0.5
+        u, w = np.meshgrid(xs, ys)
+        # rays are built in the camera frame and rotated to the world frame, where the
+        # cached scene lives; the affine origins sit just in front of the mesh so that
+        # float32 hit distances stay small and precise
+        if camera.kind == "affine":
+            z0 = pc[:, 2].max() + 1.0
+            oc = np.stack([(u - camera.principal[0]) / camera.scale,
+                           (camera.principal[1] - w) / camera.scale, np.full_like(u, z0)], -1)
+            dc = np.array([0.0, 0.0, -1.0])
+        else:
+            z0 = 0.0
+            oc = np.zeros(3)
+            # unnormalised so that t_hit is the depth -Zc directly
+            dc = np.stack([(u - camera.principal[0]) / camera.focal,
+                           (camera.principal[1] - w) / camera.focal, -np.ones_like(u)], -1)
+        R, tr = camera.rotation, camera.translation
+        origins = np.broadcast_to((oc - tr) @ R, u.shape + (3,))
+        directions = np.broadcast_to(dc @ R, u.shape + (3,))
+        t_hit, tid, b = cast(scene(v, t), origins.reshape(-1, 3), directions.reshape(-1, 3))
+        sl = (slice(y0 * s, y1 * s), slice(x0 * s, x1 * s))
+        tri_id[sl] = tid.reshape(u.shape)
+        bary[sl] = b.reshape(u.shape + (3,))
+        d = t_hit.astype(np.float64).reshape(u.shape) - z0
+        depth[sl] = np.where(tid.reshape(u.shape) >= 0, d, np.inf)
+    return Visibility(tri_id, bary, depth, t, camera=camera, supersample=s)
+
+
+def uv_visibility(triangles, uv, triangle_uv=None, size: int = 256) -> Visibility:
+    """Texel -> triangle and barycentrics of a UV layout (cached per layout and size).
+
+    Parameters
+    ----------
+    triangles : (F, 3) int
+        The mesh's vertex ids; the returned table indexes them.
+    uv : (T, 2) float in [0, 1], v up
+    triangle_uv : (F, 3) int ids into ``uv``, or None when ``uv`` is per vertex
+    size : int
+        The map is size x size texels; texel ``(i, j)`` has its centre at
+        ``u = (j + 0.5) / size``, ``v = 1 - (i + 0.5) / size`` (row 0 is the top, v = 1).
+
+    Returns
+    -------
+    Visibility with ``camera=None`` and ``depth`` zero; where UV triangles overlap one of them
+    is taken.
+
+    Examples
+    --------
+    >>> uv = np.array([[0., 0], [1, 0], [1, 1], [0, 1]])
+    >>> table = uv_visibility([[0, 1, 2], [0, 2, 3]], uv, size=8)
+    >>> int(table.mask.sum())
+    64
+    """
+    t = np.asarray(triangles, dtype=np.int64)
+    uv = np.asarray(uv, dtype=np.float64)
+    try:
+        size = int(size)
+    except (TypeError, ValueError):
+        raise InputError(f"UV map size must be a positive integer, got {size!r}") from None
+    if size < 1:
+        raise InputError(f"UV map size must be a positive integer, got {size}")
+    if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
+        raise InputError(f"triangles must be a non-empty (F, 3) array, got {t.shape}")
+    if uv.ndim != 2 or uv.shape[1] != 2 or not np.isfinite(uv).all():
+        raise InputError(f"uv must be a finite (T, 2) array, got {uv.shape}")
+    tuv = t if triangle_uv is None else np.asarray(triangle_uv, dtype=np.int64)
+    if tuv.shape != t.shape or tuv.min() < 0 or tuv.max() >= len(uv):
+        raise InputError(f"triangle_uv must be {t.shape} ids into uv (T = {len(uv)})")
+
+    def make():
+        plane = np.concatenate([uv, np.zeros((len(uv), 1))], 1)
+        sc = scene(plane, tuv)
+        c = (np.arange(size) + 0.5) / size
+        uu, vv = np.meshgrid(c, 1.0 - c)
+        origins = np.stack([uu, vv, np.ones_like(uu)], -1).reshape(-1, 3)
+        directions = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
+        _, tid, b = cast(sc, origins, directions)
+        return Visibility(tid.reshape(size, size), b.reshape(size, size, 3),
+                          np.zeros((size, size)), t, camera=None, supersample=1)
+
+    return _cached(_UV_TABLES, _UV_CACHE_SIZE, _key(t, uv, tuv, np.array([size])), make)
