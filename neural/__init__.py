@@ -1,0 +1,20 @@
+"""The neural plugin of morphable: the Generative Adversarial Renderer (GAR).
+
+``G(n, z, eps)`` renders a face image from a camera-frame normal map ``n`` and a latent
+code ``z`` (plus per-layer noise ``eps``), after "Inverting Generative Adversarial Renderer
+for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
+
+- :mod:`neural.config` — the ``tiny`` (64 px, 2 CPU cores) and ``base`` (256 px, GPU) configs;
+- :mod:`neural.gar` — mapping network, modulated convolutions, Normal Injection, generator,
+  residual discriminator;
+- :mod:`neural.losses` — L_n, L_ldmk, L_id, L_adv (non-saturating) with R1, weighted total;
+- :mod:`neural.aux` — the frozen auxiliary networks N (normals), P (face mask),
+  L (landmarks), R (identity) and their loader;
+- :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
+- :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``.
+
+This package needs torch (``pip install morphable[neural]``); ``morphable`` itself never
+imports it. Images are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W)
+unit vectors in the camera frame (x right, y up, z towards the viewer) and zero outside
+the face.
+"""

@@ -1,0 +1,127 @@
+"""Configurations of the GAR: ``tiny`` (64x64, trains on 2 CPU cores) and ``base`` (256x256,
+documented for a GPU). A config is a plain dataclass; checkpoints store it as a dict.
+
+Examples
+--------
+>>> cfg = get_config("tiny")
+>>> cfg.resolution, cfg.channels(4), cfg.channels(64)
+(64, 128, 32)
+>>> get_config("base").channels(256)
+64
+>>> get_config("tiny", steps=10).steps
+10
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+__all__ = ["GARConfig", "CONFIGS", "get_config"]
+
+
+@dataclass(frozen=True)
+class GARConfig:
+    """Every hyper-parameter of one GAR setup (sizes in pixels, angles in degrees).
+
+    Network
+    -------
+    resolution : output image side (power of two, >= 8); blocks run 4, 8, ..., resolution.
+    z_dim, w_dim : latent sizes; mapping_layers : depth of the mapping MLP (paper: 8).
+    channel_base, channel_max : feature channels at resolution r are
+        ``min(channel_max, channel_base // r)`` (StyleGAN2's rule), for G and D alike.
+    aux_width : base width of the auxiliary networks N, P, L, R.
+
+    Losses (paper defaults)
+    -----------------------
+    lambda_n = 2, lambda_ldmk = 2, lambda_id = 1, lambda_adv = 1; ``r1_gamma`` weights the R1
+    penalty, applied every ``r1_every`` discriminator steps (lazy regularisation).
+
+    Data
+    ----
+    model : 3DMM of the synthetic faces; yaw_max, pitch_max, roll_max : uniform pose ranges;
+    identity_std : spread of identity coefficients; expression_max : upper bound of
+    blendshape weights (or PCA std) of random expressions.
+    """
+
+    name: str = "tiny"
+    resolution: int = 64
+    z_dim: int = 128
+    w_dim: int = 128
+    mapping_layers: int = 8
+    mapping_lr_mul: float = 0.01
+    channel_base: int = 2048
+    channel_max: int = 128
+    aux_width: int = 16
+    # optimisation
+    batch_size: int = 8
+    g_lr: float = 2e-3
+    d_lr: float = 2e-3
+    betas: tuple = (0.0, 0.99)
+    r1_gamma: float = 1.0
+    r1_every: int = 16
+    lambda_n: float = 2.0
+    lambda_ldmk: float = 2.0
+    lambda_id: float = 1.0
+    lambda_adv: float = 1.0
+    steps: int = 4000
+    sample_every: int = 200
+    checkpoint_every: int = 200
+    seed: int = 0
+    # synthetic data
+    model: str = "sfm"
+    yaw_max: float = 45.0
+    pitch_max: float = 20.0
+    roll_max: float = 10.0
+    identity_std: float = 1.0
+    expression_max: float = 0.8
+
+    def __post_init__(self):
+        r = self.resolution
+        if r < 8 or r & (r - 1):
+            raise ValueError(f"config {self.name!r}: resolution must be a power of two >= 8, got {r}")
+
+    def channels(self, resolution: int) -> int:
+        """Feature channels of the block at ``resolution`` pixels."""
+        return int(min(self.channel_max, self.channel_base // resolution))
+
+    @property
+    def resolutions(self) -> list:
+        """Block resolutions of the generator, 4 ... resolution."""
+        out, r = [], 4
+        while r <= self.resolution:
+            out.append(r)
+            r *= 2
+        return out
+
+    @property
+    def lambdas(self) -> dict:
+        return {"n": self.lambda_n, "ldmk": self.lambda_ldmk, "id": self.lambda_id,
+                "adv": self.lambda_adv}
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["betas"] = list(self.betas)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GARConfig":
+        known = {f.name for f in fields(cls)}
+        d = {k: v for k, v in d.items() if k in known}
+        if "betas" in d:
+            d["betas"] = tuple(d["betas"])
+        return cls(**d)
+
+
+CONFIGS = {
+    "tiny": GARConfig(),
+    # StyleGAN2 256x256 channel schedule: 512 up to 32 px, then 256, 128, 64
+    "base": GARConfig(name="base", resolution=256, z_dim=512, w_dim=512, channel_base=16384,
+                      channel_max=512, aux_width=32, batch_size=16, g_lr=2e-3, d_lr=2e-3,
+                      r1_gamma=1.0, steps=200_000, sample_every=1000, checkpoint_every=5000),
+}
+
+
+def get_config(name: str = "tiny", **overrides) -> GARConfig:
+    """The named config with some fields replaced (``get_config("tiny", steps=10)``)."""
+    if name not in CONFIGS:
+        raise ValueError(f"unknown GAR config {name!r}; choose from {', '.join(CONFIGS)}")
+    return replace(CONFIGS[name], **overrides)

@@ -1,0 +1,385 @@
+"""Training data of the GAR and its auxiliary networks.
+
+(a) :class:`SyntheticFaces`: random 3DMM faces (identity, expression, pose) rendered by the
+    rasterisation core (:mod:`morphable.raster`) with exact labels: camera-frame normal maps,
+    face masks, 68 landmarks, identity ids, and Lambertian images under random SH lighting,
+    procedural skin albedo and random backgrounds.
+(b) :class:`AlignedImageFolder`: any folder of face photos (FFHQ-style), each aligned by a
+    similarity warp of its 68 landmarks (a ``.pts`` file beside the image, or dlib's
+    detector) to :func:`template` — the landmarks of the mean face as the synthetic camera
+    sees it, so that real and synthetic images share one framing.
+
+Framing (both): FFHQ's rule — the crop is ``4 x`` the inter-ocular distance wide and centred
+``0.1`` of the way from the eye midpoint to the mouth centre; for the SFM mean face this is a
+252 mm wide square. Images are float tensors (B, 3, R, R) in [-1, 1]; landmarks are pixels
+(x right, y down, 0-based pixel centres), NaN where the model defines no fixed vertex.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from morphable.errors import InputError
+
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "face_frame", "similarity",
+           "align_image", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
+
+# base skin reflectances (linear RGB) from light to dark; a face mixes two neighbours
+_SKIN = np.array([[0.85, 0.66, 0.56], [0.78, 0.57, 0.45], [0.67, 0.47, 0.36],
+                  [0.53, 0.36, 0.26], [0.38, 0.25, 0.18], [0.26, 0.17, 0.12]])
+
+
+@lru_cache(maxsize=4)
+def _model(name: str):
+    from morphable import load_model
+
+    return load_model(name)
+
+
+def face_frame(model) -> tuple[np.ndarray, float]:
+    """(centre (3,) mm, crop width mm) of the FFHQ-style crop of the model's mean face."""
+    lm = model.landmark_positions()
+    eyes = np.nanmean(lm[36:42], 0), np.nanmean(lm[42:48], 0)
+    eye_mid = (eyes[0] + eyes[1]) / 2
+    mouth = np.nanmean(lm[48:68], 0)
+    centre = eye_mid + 0.1 * (mouth - eye_mid)
+    width = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - eye_mid))
+    return centre, float(width)
+
+
+def _camera(model, resolution: int, yaw=0.0, pitch=0.0, roll=0.0):
+    from morphable.camera import Camera
+
+    centre, width = face_frame(model)
+    return Camera.looking_at_face((resolution, resolution), yaw=yaw, pitch=pitch, roll=roll,
+                                  face_width_px=150.0 * resolution / width, center=centre)
+
+
+def template(resolution: int = 64, model: str = "sfm") -> np.ndarray:
+    """(68, 2) pixel positions of the mean face's landmarks, frontal, in an aligned
+    ``resolution`` crop (NaN where the model has no fixed landmark vertex).
+
+    Examples
+    --------
+    >>> t = template(64)
+    >>> t.shape, bool(t[36, 0] < 32 < t[45, 0])  # subject's right eye on the image's left
+    ((68, 2), True)
+    """
+    m = _model(model)
+    return _camera(m, resolution).project(m.landmark_positions())
+
+
+class SyntheticFaces:
+    """Random faces of a 3DMM rendered with exact labels.
+
+    Parameters
+    ----------
+    model : model name or path (``morphable.load_model``)
+    resolution : image side, px
+    yaw_max, pitch_max, roll_max : degrees, poses are uniform in [-max, max]
+    identity_std : spread of identity coefficients (1 = the model's own)
+    expression_max : blendshape weights are uniform in [0, max] on one or two random
+        expressions (PCA expressions: N(0, max^2))
+    n_identities : None for a fresh identity per sample, or the size of a fixed pool
+        (identity ids index the pool; albedo is tied to the identity)
+    supersample : antialiasing samples per pixel along each axis
+    seed : seed of the identity pool
+
+    Examples
+    --------
+    >>> data = SyntheticFaces(resolution=32)  # doctest: +SKIP
+    >>> b = data.sample(2, rng=0, pair=True)  # doctest: +SKIP
+    >>> b["image"].shape, b["normals_b"].shape  # doctest: +SKIP
+    (torch.Size([2, 3, 32, 32]), torch.Size([2, 3, 32, 32]))
+    """
+
+    def __init__(self, model="sfm", resolution=64, yaw_max=45.0, pitch_max=20.0, roll_max=10.0,
+                 identity_std=1.0, expression_max=0.8, n_identities=None, supersample=2, seed=0):
+        self.model = _model(model) if isinstance(model, str) else model
+        self.resolution = int(resolution)
+        self.pose_max = np.array([yaw_max, pitch_max, roll_max], dtype=np.float64)
+        self.identity_std, self.expression_max = float(identity_std), float(expression_max)
+        self.supersample = int(supersample)
+        self.n_identities = n_identities
+        if n_identities is not None:
+            pool = np.random.default_rng(seed)
+            self._pool = [self._random_identity(pool) for _ in range(int(n_identities))]
+
+    @classmethod
+    def from_config(cls, config, **kwargs):
+        """The generator described by a :class:`neural.config.GARConfig`."""
+        return cls(model=config.model, resolution=config.resolution, yaw_max=config.yaw_max,
+                   pitch_max=config.pitch_max, roll_max=config.roll_max,
+                   identity_std=config.identity_std, expression_max=config.expression_max, **kwargs)
+
+    # --- random parameters --------------------------------------------------------------
+    def _random_identity(self, rng) -> dict:
+        """Shape coefficients and a procedural albedo (per-vertex RGB in [0, 1])."""
+        m = self.model
+        alpha = rng.standard_normal(m.n_identity) * self.identity_std
+        k = rng.uniform(0, len(_SKIN) - 1)
+        base = (1 - k % 1) * _SKIN[int(k)] + (k % 1) * _SKIN[min(int(k) + 1, len(_SKIN) - 1)]
+        # low-frequency blotches: a few random plane waves over the mean shape (mm)
+        x = m.mean / 100.0
+        freq = rng.normal(0, 3.0, (4, 3))
+        waves = np.sin(x @ freq.T + rng.uniform(0, 2 * np.pi, 4)) @ rng.normal(0, 0.04, (4, 3))
+        albedo = base * (1 + waves)
+        # lips redder, eyebrows darker (distances to the landmark vertices, mm)
+        lm = m.landmark_positions()
+        for group, tint, radius in ((slice(48, 68), (1.15, 0.8, 0.8), 8.0),
+                                    (slice(17, 27), (0.45, 0.42, 0.4), 5.0)):
+            pts = lm[group][~np.isnan(lm[group, 0])]
+            d = np.min(np.linalg.norm(m.mean[:, None] - pts[None], axis=-1), axis=1)
+            w = np.exp(-(d / radius) ** 2)[:, None]
+            albedo = albedo * (1 - w + w * np.asarray(tint))
+        return {"identity": alpha, "albedo": np.clip(albedo, 0.02, 1.0)}
+
+    def _random_expression(self, rng) -> np.ndarray:
+        m = self.model
+        e = np.zeros(m.n_expression)
+        if m.n_expression == 0:
+            return e
+        if m.expression_kind == "blendshapes":
+            on = rng.choice(m.n_expression, size=min(2, m.n_expression), replace=False)
+            e[on] = rng.uniform(0, self.expression_max, len(on)) * (rng.random(len(on)) < 0.7)
+        else:
+            e = rng.standard_normal(m.n_expression) * self.expression_max
+        return e
+
+    def _random_light(self, rng) -> np.ndarray:
+        from morphable.raster.shading import DirectionalLight, sh_from_lights
+
+        d = rng.normal(0, 1, 3)
+        d[2] = abs(d[2]) + 0.5                      # from the camera's hemisphere
+        tint = 1 + rng.normal(0, 0.08, 3)
+        light = DirectionalLight(d, rng.uniform(0.4, 1.0) * tint)
+        return sh_from_lights([light], ambient=rng.uniform(0.25, 0.6) * tint)
+
+    def _random_background(self, rng) -> np.ndarray:
+        """(R, R, 3) in [0, 1]: a colour gradient plus a few soft blobs."""
+        R = self.resolution
+        y, x = np.mgrid[0:R, 0:R] / R
+        c0, c1 = rng.uniform(0, 1, 3), rng.uniform(0, 1, 3)
+        t = np.clip(x * rng.uniform(-1, 1) + y * rng.uniform(-1, 1) + 0.5, 0, 1)[..., None]
+        bg = (1 - t) * c0 + t * c1
+        for _ in range(rng.integers(0, 4)):
+            cx, cy, r = rng.uniform(0, 1), rng.uniform(0, 1), rng.uniform(0.05, 0.3)
+            w = np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / r ** 2)[..., None]
+            bg = (1 - w) * bg + w * rng.uniform(0, 1, 3)
+        return bg
+
+    # --- rendering ----------------------------------------------------------------------
+    def render(self, identity, albedo, expression, pose, sh, background) -> dict:
+        """One face -> dict of numpy arrays.
+
+        identity (K,), albedo (V, 3) in [0, 1], expression (E,), pose (3,) yaw, pitch, roll
+        in degrees, sh (9, 3), background (R, R, 3) -> ``image`` (R, R, 3) in [0, 1],
+        ``normals`` (R, R, 3) camera frame, zero outside, ``mask`` (R, R) float coverage,
+        ``landmarks`` (68, 2) px (NaN where undefined).
+        """
+        from morphable.raster.interpolate import interpolate
+        from morphable.raster.normal_maps import normal_map
+        from morphable.raster.shading import shade_sh
+        from morphable.raster.visibility import visibility
+
+        m = self.model
+        cam = _camera(m, self.resolution, *pose)
+        verts = m.vertices(identity, expression)
+        vis = visibility(verts, m.triangles, cam, supersample=self.supersample)
+        normals = normal_map(verts, m.triangles, vis=vis)            # (R, R, 3), resolved
+        # shade every sample (background samples have zero albedo), then box-filter:
+        # antialiased edges against the background
+        n_s = normal_map(verts, m.triangles, vis=replace(vis, supersample=1))
+        colour = vis.downsample(shade_sh(n_s, interpolate(vis, albedo), sh))
+        cover = vis.coverage()
+        image = colour + (1 - cover[..., None]) * background
+        lm = cam.project(m.landmark_positions(identity, expression))
+        return {"image": np.clip(image, 0, 1), "normals": normals, "mask": cover,
+                "landmarks": lm}
+
+    def sample(self, batch_size: int, rng=None, pair: bool = False) -> dict:
+        """A batch of random faces as torch tensors.
+
+        Returns
+        -------
+        dict with ``image`` (B, 3, R, R) in [-1, 1], ``normals`` (B, 3, R, R), ``mask``
+        (B, 1, R, R) in [0, 1], ``landmarks`` (B, 68, 2) px (NaN where undefined),
+        ``identity_id`` (B,) int64 (-1 without a pool), ``pose`` (B, 3) degrees; with
+        ``pair=True`` also ``image_b``, ``normals_b``, ``mask_b``, ``landmarks_b``,
+        ``pose_b``: the same identities (and albedo) under another expression, pose,
+        light and background.
+        """
+        rng = np.random.default_rng(rng)
+        views = ("", "_b") if pair else ("",)
+        out = {f"{k}{v}": [] for v in views for k in ("image", "normals", "mask", "landmarks", "pose")}
+        out["identity_id"] = []
+        for _ in range(batch_size):
+            if self.n_identities is None:
+                ident, iid = self._random_identity(rng), -1
+            else:
+                iid = int(rng.integers(self.n_identities))
+                ident = self._pool[iid]
+            out["identity_id"].append(iid)
+            for v in views:
+                pose = rng.uniform(-1, 1, 3) * self.pose_max
+                r = self.render(ident["identity"], ident["albedo"], self._random_expression(rng),
+                                pose, self._random_light(rng), self._random_background(rng))
+                out[f"image{v}"].append(r["image"].transpose(2, 0, 1) * 2 - 1)
+                out[f"normals{v}"].append(r["normals"].transpose(2, 0, 1))
+                out[f"mask{v}"].append(r["mask"][None])
+                out[f"landmarks{v}"].append(r["landmarks"])
+                out[f"pose{v}"].append(pose)
+        batch = {k: torch.as_tensor(np.stack(v), dtype=torch.float32) for k, v in out.items()
+                 if k != "identity_id"}
+        batch["identity_id"] = torch.as_tensor(out["identity_id"], dtype=torch.int64)
+        return batch
+
+
+# --- real images ----------------------------------------------------------------------
+def similarity(src, dst) -> np.ndarray:
+    """Least-squares similarity (Umeyama) mapping points ``src`` (N, 2) onto ``dst`` (N, 2),
+    ignoring rows with NaN -> (2, 3) matrix ``A`` with ``dst ~ A[:, :2] @ src + A[:, 2]``.
+
+    Examples
+    --------
+    >>> src = np.array([[0., 0], [1, 0], [0, 1]])
+    >>> similarity(src, 2 * src + 5).round(6) + 0.0  # + 0.0 turns -0. into 0.
+    array([[2., 0., 5.],
+           [0., 2., 5.]])
+    """
+    src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
+    ok = np.isfinite(src).all(1) & np.isfinite(dst).all(1)
+    if ok.sum() < 2:
+        raise InputError("similarity needs at least two landmark pairs")
+    s, d = src[ok], dst[ok]
+    ms, md = s.mean(0), d.mean(0)
+    s0, d0 = s - ms, d - md
+    U, S, Vt = np.linalg.svd(d0.T @ s0 / len(s))
+    sign = np.diag([1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ sign @ Vt
+    var = (s0 ** 2).sum() / len(s)
+    if var < 1e-12:
+        raise InputError("similarity: the source landmarks coincide")
+    scale = np.trace(np.diag(S) @ sign) / var
+    return np.hstack([scale * R, (md - scale * R @ ms)[:, None]])
+
+
+def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
+    """Warp a photo so that its 68 landmarks (pixels) match :func:`template`.
+
+    image : (H, W, 3) uint8 or PIL image; landmarks : (68, 2) 0-based pixels ->
+    (resolution, resolution, 3) uint8.
+    """
+    from PIL import Image
+
+    img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
+    A = similarity(landmarks, template(resolution, model))
+    # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
+    # our pixel centres are integers, PIL's are at +0.5
+    inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))
+    shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])
+    M = np.linalg.inv(shift) @ inv @ shift
+    out = img.convert("RGB").transform((resolution, resolution), Image.Transform.AFFINE,
+                                       M[:2].ravel().tolist(), resample=Image.Resampling.BICUBIC)
+    return np.asarray(out)
+
+
+def _detector():
+    import dlib
+    import face_recognition_models
+
+    return (dlib.get_frontal_face_detector(),
+            dlib.shape_predictor(face_recognition_models.pose_predictor_model_location()))
+
+
+def detect_landmarks(image) -> np.ndarray | None:
+    """(68, 2) pixels of the largest face dlib finds in an (H, W, 3) uint8 image, or None."""
+    detect, predict = _detector_cached()
+    faces = detect(np.asarray(image), 1)
+    if not faces:
+        return None
+    face = max(faces, key=lambda r: r.area())
+    shape = predict(np.asarray(image), face)
+    return np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
+
+
+_detector_cached = lru_cache(maxsize=1)(_detector)
+
+
+class AlignedImageFolder(torch.utils.data.Dataset):
+    """Face photos of a folder, aligned to :func:`template`, as (3, R, R) tensors in [-1, 1].
+
+    Landmarks come from ``<image>.pts`` beside each image (iBUG format, 1-based) when it
+    exists, else from dlib's 68-point detector; images without a face are skipped when the
+    folder is indexed. With ``aligned=True`` the images are taken as already aligned (e.g.
+    the output of :func:`prepare_folder`) and only resized.
+    """
+
+    def __init__(self, root, resolution: int = 64, aligned: bool = False, model: str = "sfm"):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError(f"{self.root}: image folder not found")
+        self.files = sorted(p for p in self.root.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.files:
+            raise InputError(f"{self.root}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        self.resolution, self.aligned, self.model = int(resolution), aligned, model
+
+    def __len__(self):
+        return len(self.files)
+
+    def load(self, i: int) -> np.ndarray | None:
+        """Aligned (R, R, 3) uint8 image ``i``, or None when no face is found."""
+        from PIL import Image
+
+        path = self.files[i]
+        try:
+            img = Image.open(path).convert("RGB")
+        except OSError as e:
+            raise InputError(f"{path}: cannot read image ({e})") from None
+        R = self.resolution
+        if self.aligned:
+            return np.asarray(img.resize((R, R), Image.Resampling.LANCZOS))
+        pts = path.with_suffix(".pts")
+        if pts.is_file():
+            from morphable.io.landmarks import read_pts
+
+            lm = read_pts(pts)
+        else:
+            lm = detect_landmarks(np.asarray(img))
+            if lm is None:
+                return None
+        return align_image(img, lm, R, self.model)
+
+    def __getitem__(self, i):
+        img = self.load(i)
+        if img is None:
+            # no face: fall back on the next image so that a DataLoader never sees None
+            return self[(i + 1) % len(self)]
+        return torch.as_tensor(img.transpose(2, 0, 1).copy(), dtype=torch.float32) / 127.5 - 1
+
+
+def prepare_folder(src, dst, resolution: int = 256, model: str = "sfm") -> int:
+    """Align every face photo of ``src`` once and write PNGs to ``dst``; returns the count
+    written. Train on ``dst`` with ``--images dst --aligned``."""
+    from PIL import Image
+
+    from morphable.io.atomic import atomic_path
+
+    data = AlignedImageFolder(src, resolution, model=model)
+    dst = Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    n = 0
+    for i in range(len(data)):
+        img = data.load(i)
+        if img is None:
+            continue
+        with atomic_path(dst / f"{data.files[i].stem}.png") as tmp:
+            Image.fromarray(img).save(tmp, format="PNG")
+        n += 1
+    return n

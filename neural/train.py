@@ -1,0 +1,338 @@
+"""Train the GAR: ``python -m neural.train --config tiny --out runs/tiny``.
+
+Each step: sample synthetic faces (pairs of views of the same identities), one generator
+step on ``L_GAR`` (:func:`neural.losses.generator_losses`), one discriminator step
+(logistic loss, lazy R1 every ``r1_every`` steps), and an exponential moving average of
+the generator (``G_ema``, used for samples and the saved weights).
+
+Reproducible and resumable: step ``k`` draws its data, latents and noise from seeds
+``(seed, k)``, and ``out/checkpoint.pt`` (written atomically every ``checkpoint_every``
+steps, at the end, and on Ctrl-C) holds the networks, optimiser states and step, so a run
+killed at any moment and restarted with the same command continues from its last
+checkpoint and ends with the same weights as an uninterrupted run.
+
+Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (G_ema weights and config),
+``samples/step-XXXXXX.png`` (rows: a normal map then ``G`` under fixed latents),
+``log.jsonl`` (one JSON line per step: losses, seconds).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from morphable.errors import InputError, MorphableError
+
+from .aux import NAMES, default_weights_path, load_aux
+from .config import GARConfig, get_config
+from .gar import Discriminator, Generator
+from .losses import discriminator_loss, generator_losses, r1_penalty
+
+__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid"]
+
+log = logging.getLogger("neural.train")
+
+
+def normal_to_rgb(normals: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W) normals -> (B, 3, H, W) in [-1, 1] for display (zero background stays
+    black)."""
+    fg = (normals.abs().sum(1, keepdim=True) > 0).to(normals.dtype)
+    return ((normals + 1) / 2 * fg) * 2 - 1
+
+
+def save_grid(images: torch.Tensor, path, ncol: int) -> None:
+    """(N, 3, H, W) images in [-1, 1] -> a PNG grid of ``ncol`` columns (atomic write)."""
+    from PIL import Image
+
+    from morphable.io.atomic import atomic_path
+
+    x = ((images.detach().clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).cpu().numpy()
+    N, _, H, W = x.shape
+    nrow = -(-N // ncol)
+    grid = np.zeros((nrow * H, ncol * W, 3), dtype=np.uint8)
+    for i in range(N):
+        r, c = divmod(i, ncol)
+        grid[r * H:(r + 1) * H, c * W:(c + 1) * W] = x[i].transpose(1, 2, 0)
+    with atomic_path(path) as tmp:
+        Image.fromarray(grid).save(tmp, format="PNG")
+
+
+class _Batches(torch.utils.data.IterableDataset):
+    """Synthetic batches for steps ``start, start + 1, ...``, step k seeded by (seed, k)."""
+
+    def __init__(self, data, batch_size, seed, start):
+        self.data, self.batch_size, self.seed, self.start = data, batch_size, seed, start
+
+    def __iter__(self):
+        step = self.start
+        while True:
+            yield self.data.sample(self.batch_size, rng=[self.seed, step], pair=True)
+            step += 1
+
+
+class Trainer:
+    """The GAR training state: networks, optimisers, data, step.
+
+    Parameters
+    ----------
+    config : GARConfig
+    out : output folder
+    aux : dict name -> frozen network, or None to load the committed aux weights
+        (``neural/weights/aux_*.pt``, or ``aux_dir/aux_*.pt``)
+    images : optional folder of face photos for the discriminator's real images
+        (otherwise the synthetic renders are the real images)
+    """
+
+    def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
+                 aligned=False, workers: int = 0):
+        from .data import AlignedImageFolder, SyntheticFaces
+
+        self.config, self.out = config, Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "samples").mkdir(exist_ok=True)
+        torch.manual_seed(config.seed)
+        self.G = Generator(config)
+        self.D = Discriminator(config)
+        self.G_ema = copy.deepcopy(self.G).eval().requires_grad_(False)
+        self.opt_g = torch.optim.Adam(self.G.parameters(), lr=config.g_lr, betas=config.betas)
+        # lazy R1: scale the D optimiser's momentum as StyleGAN2 does
+        c = config.r1_every / (config.r1_every + 1)
+        self.opt_d = torch.optim.Adam(self.D.parameters(), lr=config.d_lr * c,
+                                      betas=tuple(b ** c for b in config.betas))
+        if aux is None:
+            aux = {n: load_aux(n, None if aux_dir is None else Path(aux_dir) / f"aux_{n}.pt",
+                               resolution=config.resolution) for n in NAMES}
+        self.aux = aux
+        self.data = SyntheticFaces.from_config(config)
+        self.images = None
+        if images is not None:
+            self.images = AlignedImageFolder(images, config.resolution, aligned=aligned,
+                                             model=config.model)
+        self.workers = workers
+        self.step = 0
+        self.landmark_index = torch.as_tensor(np.flatnonzero(self.data.model.landmark_ids >= 0))
+
+    # --- checkpoints --------------------------------------------------------------------
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.out / "checkpoint.pt"
+
+    def state_dict(self) -> dict:
+        return {"config": self.config.to_dict(), "step": self.step, "G": self.G.state_dict(),
+                "D": self.D.state_dict(), "G_ema": self.G_ema.state_dict(),
+                "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict()}
+
+    def save(self) -> Path:
+        from morphable.io.atomic import atomic_path
+
+        with atomic_path(self.checkpoint_path) as tmp:
+            torch.save(self.state_dict(), tmp)
+        with atomic_path(self.out / "generator.pt") as tmp:
+            torch.save({"config": self.config.to_dict(), "step": self.step,
+                        "G": self.G_ema.state_dict()}, tmp)
+        return self.checkpoint_path
+
+    def load(self, path=None) -> int:
+        """Restore from a checkpoint (default ``out/checkpoint.pt``); returns the step."""
+        path = Path(path or self.checkpoint_path)
+        try:
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        except (OSError, RuntimeError, EOFError) as e:
+            raise InputError(f"{path}: cannot read checkpoint ({str(e).splitlines()[0]})") from None
+        saved = GARConfig.from_dict(ckpt["config"])
+        arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max")
+        if any(getattr(saved, k) != getattr(self.config, k) for k in arch):
+            raise InputError(f"{path}: checkpoint of a different architecture ({saved.name}, "
+                             f"{saved.resolution} px); use another --out folder")
+        for key in ("G", "D", "G_ema", "opt_g", "opt_d"):
+            getattr(self, key).load_state_dict(ckpt[key])
+        self.step = int(ckpt["step"])
+        return self.step
+
+    # --- one step -----------------------------------------------------------------------
+    def _real_images(self, batch, gen):
+        if self.images is None:
+            return batch["image"]
+        idx = torch.randint(len(self.images), (batch["image"].shape[0],), generator=gen)
+        return torch.stack([self.images[int(i)] for i in idx])
+
+    def train_step(self, batch) -> dict:
+        cfg = self.config
+        gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + self.step)
+        torch.manual_seed(cfg.seed * 1_000_003 + self.step)   # the per-layer noise
+        B = batch["normals"].shape[0]
+        z1 = torch.randn(B, cfg.z_dim, generator=gen)
+        z2 = torch.randn(B, cfg.z_dim, generator=gen)
+
+        # generator
+        self.G.train()
+        self.D.requires_grad_(False)
+        total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
+                                              batch["normals_b"], z1, z2, cfg.lambdas,
+                                              landmark_index=self.landmark_index)
+        self.opt_g.zero_grad(set_to_none=True)
+        total.backward()
+        self.opt_g.step()
+        self.D.requires_grad_(True)
+
+        # discriminator, with lazy R1 on real images
+        real = self._real_images(batch, gen)
+        r1_step = cfg.r1_gamma > 0 and self.step % cfg.r1_every == 0
+        real.requires_grad_(r1_step)
+        real_logits = self.D(real)
+        d_loss = discriminator_loss(real_logits, self.D(fake))
+        loss = d_loss
+        if r1_step:
+            r1 = r1_penalty(real, real_logits)
+            loss = loss + cfg.r1_gamma / 2 * r1 * cfg.r1_every
+            terms["r1"] = float(r1.detach())
+        self.opt_d.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt_d.step()
+
+        # G_ema: half-life of 10k images
+        beta = 0.5 ** (B / 10_000)
+        with torch.no_grad():
+            for pe, p in zip(self.G_ema.parameters(), self.G.parameters()):
+                pe.lerp_(p, 1 - beta)
+            for be, b in zip(self.G_ema.buffers(), self.G.buffers()):
+                be.copy_(b)
+        terms.update(g_total=float(total.detach()), d=float(d_loss.detach()))
+        if not all(np.isfinite(v) for v in terms.values()):
+            raise MorphableError(f"training diverged at step {self.step}: {terms}")
+        self.step += 1
+        return terms
+
+    # --- samples ------------------------------------------------------------------------
+    def sample_grid(self, path, n_normals: int = 4, n_latents: int = 6) -> Path:
+        """Rows: a fixed normal map, then G_ema under ``n_latents`` fixed latents."""
+        fixed = self.data.sample(n_normals, rng=[self.config.seed, 10**9])
+        gen = torch.Generator().manual_seed(12345)
+        z = torch.randn(n_latents, self.config.z_dim, generator=gen)
+        noise = self.G_ema.make_noise(n_latents, gen)
+        rows = []
+        with torch.no_grad():
+            for n in fixed["normals"]:
+                imgs = self.G_ema(n[None].expand(n_latents, -1, -1, -1), z, noise=noise)
+                rows += [normal_to_rgb(n[None]), imgs]
+        save_grid(torch.cat(rows), path, ncol=n_latents + 1)
+        return Path(path)
+
+    # --- the loop -----------------------------------------------------------------------
+    def fit(self, steps=None, progress: bool = True) -> int:
+        """Train up to ``steps`` (default config.steps) total steps; returns the final step."""
+        from tqdm import tqdm
+
+        cfg = self.config
+        steps = cfg.steps if steps is None else steps
+        batches = torch.utils.data.DataLoader(
+            _Batches(self.data, cfg.batch_size, cfg.seed, self.step), batch_size=None,
+            num_workers=self.workers, persistent_workers=False)
+        bar = tqdm(total=steps, initial=self.step, disable=not progress, unit="step",
+                   dynamic_ncols=True)
+        logf = open(self.out / "log.jsonl", "a")
+        try:
+            it = iter(batches)
+            while self.step < steps:
+                t0 = time.perf_counter()
+                terms = self.train_step(next(it))
+                terms["step"], terms["seconds"] = self.step, round(time.perf_counter() - t0, 4)
+                logf.write(json.dumps(terms) + "\n")
+                logf.flush()
+                bar.update(1)
+                bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()
+                                 if k in ("n", "ldmk", "id", "adv", "d")})
+                if self.step % cfg.sample_every == 0 or self.step == steps:
+                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
+                if self.step % cfg.checkpoint_every == 0 or self.step == steps:
+                    self.save()
+        except KeyboardInterrupt:
+            self.save()
+            raise
+        finally:
+            bar.close()
+            logf.close()
+        return self.step
+
+
+def _parse_set(items) -> dict:
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise InputError(f"--set expects key=value, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m neural.train", description=__doc__.splitlines()[0])
+    p.add_argument("--config", default="tiny", help="tiny (64 px, CPU) or base (256 px, GPU)")
+    p.add_argument("--out", required=True, help="output folder (resumes from its checkpoint)")
+    p.add_argument("--steps", type=int, help="total steps (default: the config's)")
+    p.add_argument("--batch-size", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--set", nargs="*", metavar="KEY=VALUE",
+                   help="override config fields, e.g. lambda_n=0 sample_every=50")
+    p.add_argument("--aux-dir", help="folder with aux_N.pt, aux_P.pt, aux_L.pt, aux_R.pt "
+                                     f"(default {default_weights_path('N').parent})")
+    p.add_argument("--untrained-aux", action="store_true",
+                   help="use randomly initialised aux networks (smoke tests only)")
+    p.add_argument("--images", help="folder of face photos for the discriminator (FFHQ-style)")
+    p.add_argument("--aligned", action="store_true", help="--images are already aligned")
+    p.add_argument("--no-resume", action="store_true", help="fail if --out has a checkpoint")
+    p.add_argument("--workers", type=int, default=0, help="data-loading processes")
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    try:
+        overrides = _parse_set(args.set)
+        for key in ("steps", "batch_size", "seed"):
+            if getattr(args, key) is not None:
+                overrides[key] = getattr(args, key)
+        try:
+            cfg = get_config(args.config, **overrides)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"--config/--set: {e}") from None
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        aux = None
+        if args.untrained_aux:
+            log.warning("untrained aux networks: the losses L_n, L_ldmk, L_id are meaningless")
+            torch.manual_seed(cfg.seed + 1)
+            aux = {n: load_aux(n, pretrained=False, width=cfg.aux_width) for n in NAMES}
+        trainer = Trainer(cfg, args.out, aux=aux, aux_dir=args.aux_dir, images=args.images,
+                          aligned=args.aligned, workers=args.workers)
+        if trainer.checkpoint_path.exists():
+            if args.no_resume:
+                raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
+            log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
+        trainer.fit(progress=not args.quiet)
+        log.info("done: step %d, weights in %s", trainer.step, trainer.out / "generator.pt")
+        return 0
+    except MorphableError as e:
+        print(f"neural.train: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("neural.train: interrupted (checkpoint saved; rerun the command to resume)",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""GAR training: a few-step smoke run, sample grids, checkpoints, kill and resume."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("open3d")
+
+REPO = Path(__file__).resolve().parents[1]
+ARGS = ["--config", "tiny", "--set", "resolution=32", "channel_base=256", "channel_max=32",
+        "z_dim=16", "w_dim=16", "aux_width=4", "batch_size=2", "sample_every=3",
+        "checkpoint_every=2", "r1_every=2", "--untrained-aux", "--threads", "1", "--quiet"]
+STEPS = 8
+
+
+def _steps(out: Path) -> list:
+    log = out / "log.jsonl"
+    return [json.loads(line)["step"] for line in log.read_text().splitlines()] if log.exists() else []
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory, data_dir):
+    from neural.train import main
+
+    out = tmp_path_factory.mktemp("full")
+    threads = torch.get_num_threads()
+    try:
+        assert main(ARGS + ["--out", str(out), "--steps", str(STEPS)]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    return out
+
+
+def test_smoke_run_outputs(uninterrupted):
+    out = uninterrupted
+    assert _steps(out) == list(range(1, STEPS + 1))
+    rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    assert {"n", "ldmk", "id", "adv", "d", "g_total"} <= set(rows[0]) and "r1" in rows[0]
+    assert all(all(v == v for v in r.values()) for r in rows)          # no NaN
+    samples = sorted(p.name for p in (out / "samples").iterdir())
+    assert samples == ["step-000003.png", "step-000006.png", "step-000008.png"]
+    from PIL import Image
+
+    grid = Image.open(out / "samples" / "step-000008.png")
+    assert grid.size == (7 * 32, 4 * 32)  # rows: 4 normal maps, each followed by 6 latents
+    ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+    assert ckpt["step"] == STEPS and ckpt["config"]["resolution"] == 32
+    gen = torch.load(out / "generator.pt", weights_only=True)
+    from neural.config import GARConfig
+    from neural.gar import Generator
+
+    G = Generator(GARConfig.from_dict(gen["config"]))
+    G.load_state_dict(gen["G"])
+    n = torch.zeros(1, 3, 32, 32)
+    n[:, 2] = 1
+    assert torch.isfinite(G(n, torch.randn(1, 16))).all()
+
+
+def test_kill_and_resume_matches_uninterrupted(uninterrupted, tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "neural.train", *ARGS, "--out", str(out), "--steps", str(STEPS)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    # kill -9 once a checkpoint exists and a later step has started
+    while time.time() < deadline and proc.poll() is None:
+        if (out / "checkpoint.pt").exists() and len(_steps(out)) >= 3:
+            proc.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read().decode()[-2000:]
+    saved = torch.load(out / "checkpoint.pt", weights_only=True)["step"]
+    assert 2 <= saved < STEPS
+    # rerunning the same command resumes from the checkpoint and finishes
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "resuming from" in done.stderr
+    steps = _steps(out)
+    assert steps[-1] == STEPS and steps[steps.index(saved) + 1:].count(saved + 1) >= 1
+    a = torch.load(out / "checkpoint.pt", weights_only=True)
+    b = torch.load(uninterrupted / "checkpoint.pt", weights_only=True)
+    for key in ("G", "D", "G_ema"):
+        for name, value in a[key].items():
+            torch.testing.assert_close(value, b[key][name], atol=1e-5, rtol=1e-4,
+                                       msg=f"{key}.{name} differs after resume")
+
+
+def test_bad_arguments_one_line_error(tmp_path, capsys):
+    from neural.train import main
+
+    assert main(["--out", str(tmp_path / "x"), "--config", "huge"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "huge" in err
+    assert main(["--out", str(tmp_path / "y"), "--set", "resolution"]) == 2
+    assert "key=value" in capsys.readouterr().err
+    assert not (tmp_path / "y").exists()
