@@ -16,7 +16,6 @@ Framing (both): FFHQ's rule — the crop is ``4 x`` the inter-ocular distance wi
 """
 from __future__ import annotations
 
-from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -153,7 +152,7 @@ class SyntheticFaces:
         return e
 
     def _random_light(self, rng) -> np.ndarray:
-        from morphable.raster.shading import DirectionalLight, sh_from_lights
+        from morphable.raster import DirectionalLight, sh_from_lights
 
         d = rng.normal(0, 1, 3)
         d[2] = abs(d[2]) + 0.5                      # from the camera's hemisphere
@@ -183,24 +182,18 @@ class SyntheticFaces:
         ``normals`` (R, R, 3) camera frame, zero outside, ``mask`` (R, R) float coverage,
         ``landmarks`` (68, 2) px (NaN where undefined).
         """
-        from morphable.raster.interpolate import interpolate
-        from morphable.raster.normal_maps import normal_map
-        from morphable.raster.shading import shade_sh
-        from morphable.raster.visibility import visibility
+        from morphable.raster import normal_map, render, visibility
 
         m = self.model
         cam = _camera(m, self.resolution, *pose)
         verts = m.vertices(identity, expression)
         vis = visibility(verts, m.triangles, cam, supersample=self.supersample)
         normals = normal_map(verts, m.triangles, vis=vis)            # (R, R, 3), resolved
-        # shade every sample (background samples have zero albedo), then box-filter:
-        # antialiased edges against the background
-        n_s = normal_map(verts, m.triangles, vis=replace(vis, supersample=1))
-        colour = vis.downsample(shade_sh(n_s, interpolate(vis, albedo), sh))
+        image = render(verts, m.triangles, colors=albedo, light=sh, background=background,
+                       vis=vis)
         cover = vis.coverage()
-        image = colour + (1 - cover[..., None]) * background
         lm = cam.project(m.landmark_positions(identity, expression))
-        return {"image": np.clip(image, 0, 1), "normals": normals, "mask": cover,
+        return {"image": image, "normals": normals, "mask": cover,
                 "landmarks": lm}
 
     def sample(self, batch_size: int, rng=None, pair: bool = False) -> dict:
