@@ -41,7 +41,8 @@ class Scan:
     landmarks : (68, 3) float64, mm, iBUG order, NaN rows where not given
     units : str — the file's units (``mm``, ``cm``, ``m``), given or detected
     source : str — the mesh path
-    uv : (S, 2) float64 per-vertex texture coordinates or None
+    uv : (T, 2) float64 texture coordinates in [0, 1] (v up) or None
+    triangle_uv : (G, 3) int64 ids into ``uv`` per triangle corner, or None (``uv`` per vertex)
     texture : (H, W, 3) float64 in [0, 1] or None
     """
 
@@ -51,6 +52,7 @@ class Scan:
     units: str = "mm"
     source: str = ""
     uv: np.ndarray | None = None
+    triangle_uv: np.ndarray | None = None
     texture: np.ndarray | None = None
 
     @property
@@ -171,13 +173,24 @@ def load_scan(path, landmarks, units: str = "auto") -> Scan:
     if units not in UNITS:
         raise InputError(f"{path}: unknown units {units!r} (mm, cm, m or auto)")
     k = UNITS[units]
-    uv = texture = None
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    triangles = np.asarray(mesh.faces, dtype=np.int64)
+    uv = triangle_uv = texture = None
     visual = getattr(mesh, "visual", None)
-    if getattr(visual, "uv", None) is not None and len(visual.uv) == len(mesh.vertices):
-        uv = np.asarray(visual.uv, dtype=np.float64)
-        image = getattr(getattr(visual, "material", None), "image", None)
-        if image is not None:
-            texture = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
-    return Scan(vertices=np.asarray(mesh.vertices, dtype=np.float64) * k,
-                triangles=np.asarray(mesh.faces, dtype=np.int64), landmarks=lm * k, units=units,
-                source=str(path), uv=uv, texture=texture)
+    image = getattr(getattr(visual, "material", None), "image", None)
+    if image is not None:
+        texture = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+        if Path(path).suffix.lower() == ".obj":
+            from morphable.io.obj import read_obj
+
+            # trimesh gives one UV per vertex, wrong along seams: take the file's UV indexing
+            obj = read_obj(path)
+            if obj.triangle_uv is not None and obj.triangles.shape == triangles.shape:
+                vertices, triangles = obj.vertices, obj.triangles
+                uv, triangle_uv = obj.uv, obj.triangle_uv
+        if uv is None and getattr(visual, "uv", None) is not None and len(visual.uv) == len(vertices):
+            uv = np.asarray(visual.uv, dtype=np.float64)
+        if uv is None:
+            texture = None
+    return Scan(vertices=vertices * k, triangles=triangles, landmarks=lm * k, units=units,
+                source=str(path), uv=uv, triangle_uv=triangle_uv, texture=texture)

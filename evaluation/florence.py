@@ -1,0 +1,356 @@
+"""The Florence evaluation protocol on any scan: reconstruct from video frames, compare.
+
+For each condition a video of the scan is made (synthetic: :mod:`evaluation.videos`; or
+real frames in a Florence-layout folder), ``--frames`` frames are sampled uniformly, each
+method reconstructs the face from their landmarks, the per-frame meshes are averaged, and the
+average is compared with the scan (:func:`morphable.metrics.compare_to_scan`: landmark
+similarity, crop of 95 mm around the nose tip, ICP, point-to-plane error per vertex).
+
+Command::
+
+    python -m evaluation.florence --scan ../shared/data/scans/james/james.obj \\
+        --scan-landmarks ../shared/data/scans/james/james.ljson \\
+        --methods ours eos mean-face --report reports/florence_james.json
+
+prints a table (method x condition, mean ± std of the point-to-plane error in mm, seconds per
+frame) and writes the JSON report plus the per-vertex errors (``.npz`` beside the report).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from morphable.errors import FitError, InputError, MorphableError
+from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
+
+from .scans import UNITS, Scan, load_scan
+from .videos import CONDITIONS, sample_frames, synthetic_video
+
+__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
+           "format_table", "main"]
+
+METHODS = ("ours", "ours-independent", "eos", "mean-face", "gar")
+METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
+          "nose tip to the tangent plane of the nearest scan vertex, after alignment")
+
+
+@dataclass
+class Reconstruction:
+    """One method's reconstruction of one video.
+
+    Attributes
+    ----------
+    vertices : (V, 3) mm, the average of the per-frame meshes (model frame)
+    triangles : (F, 3) int
+    landmarks : (68, 3) mm on ``vertices``, NaN where the model has no fixed landmark vertex
+    seconds : float, fitting time for the whole video (model loading excluded)
+    n_frames : int
+    info : dict, method-specific figures (landmark residuals...)
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    landmarks: np.ndarray
+    seconds: float
+    n_frames: int
+    info: dict = field(default_factory=dict)
+
+
+def _landmarks_of(model, vertices) -> np.ndarray:
+    out = np.full((68, 3), np.nan)
+    ok = model.landmark_ids >= 0
+    out[ok] = vertices[model.landmark_ids[ok]]
+    return out
+
+
+def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
+                peers: dict | None = None) -> Reconstruction:
+    """Reconstruct one face from the landmarks of several frames.
+
+    Parameters
+    ----------
+    method : one of :data:`METHODS`
+    model : MorphableModel (``eos`` always uses the SFM it ships with)
+    landmarks : (N, 68, 2) px, NaN where missing
+    image_size : (W, H) px
+    effort : method settings: ``n_iterations``/``n_identity`` for ours, ``num_iterations``
+        for eos
+    peers : cache of loaded peer fitters (reused between calls)
+
+    Returns
+    -------
+    Reconstruction (average of the per-frame meshes).
+    """
+    effort = dict(effort or {})
+    peers = peers if peers is not None else {}
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if method == "mean-face":
+        return Reconstruction(model.mean.astype(np.float64), model.triangles,
+                              _landmarks_of(model, model.mean), 0.0, len(lm))
+    if method in ("ours", "ours-independent"):
+        try:
+            from morphable.fitting import fit_landmarks
+        except ImportError as e:
+            raise InputError(f"method {method}: morphable.fitting is not available ({e})") from None
+        t = time.perf_counter()
+        res = fit_landmarks(model, lm, image_size, camera=effort.pop("camera", "affine"),
+                            shared_identity=method == "ours", **effort)
+        v = res.vertices().mean(0)
+        dt = time.perf_counter() - t
+        return Reconstruction(v, model.triangles, _landmarks_of(model, v), dt, len(lm),
+                              {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px))})
+    if method == "eos":
+        from morphable import load_model
+
+        from .peers import EosFitter
+
+        key = ("eos", tuple(sorted(effort.items())))
+        if key not in peers:
+            peers[key] = EosFitter(**effort)
+        sfm = load_model("sfm")
+        t = time.perf_counter()
+        v = peers[key].fit(lm, image_size).mean(0)
+        dt = time.perf_counter() - t
+        return Reconstruction(v, sfm.triangles, _landmarks_of(sfm, v), dt, len(lm))
+    if method == "gar":
+        raise InputError("method gar: the neural plugin's reconstruction is not wired into the "
+                         "protocol yet")
+    raise InputError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+
+
+def evaluate(rec: Reconstruction, scan: Scan, radius: float = CROP_RADIUS_MM, icp: bool = True,
+             icp_scale: bool = False, landmark_scale: bool = True):
+    """Compare a reconstruction with the scan -> (cell dict for the report, Comparison)."""
+    cmp = compare_to_scan(rec.vertices, rec.triangles, scan.vertices, scan.triangles,
+                          rec.landmarks, scan.landmarks, radius=radius, icp=icp,
+                          icp_scale=icp_scale, landmark_scale=landmark_scale)
+    s = cmp.summary()
+    p = s["point_to_plane"]
+    cell = {"mean_mm": p["mean_mm"], "std_mm": p["std_mm"], "median_mm": p["median_mm"],
+            "s_per_frame": rec.seconds / max(rec.n_frames, 1),
+            "point_to_surface_mm": s["point_to_surface"]["mean_mm"],
+            "scan_to_recon_mm": s["scan_to_recon"]["mean_mm"],
+            "symmetric_mm": s["symmetric"]["mean_mm"],
+            "n_vertices": p["n"], "n_frames": rec.n_frames,
+            "landmark_alignment_rmse_mm": cmp.alignment["landmarks"]["rmse_mm"],
+            "icp_fitness": (cmp.alignment["icp"] or {}).get("fitness"),
+            **rec.info}
+    return cell, cmp
+
+
+def _frames_from_folder(folder: Path, condition: str, k: int):
+    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H))."""
+    from PIL import Image
+
+    from morphable.io.landmarks import read_pts
+
+    d = folder / condition
+    frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
+    if not frames:
+        raise InputError(f"{d}: no frames (.png .jpg .ppm) for condition {condition}")
+    if k > len(frames):
+        raise InputError(f"{d}: {len(frames)} frames, cannot sample {k}")
+    chosen = [frames[i] for i in sample_frames(len(frames), k)]
+    sizes = {Image.open(p).size for p in chosen}
+    if len(sizes) != 1:
+        raise InputError(f"{d}: frames have different sizes {sorted(sizes)}")
+    out = []
+    for p in chosen:
+        pts = p.with_suffix(".pts")
+        if pts.is_file():
+            out.append(read_pts(pts))
+        else:
+            from .videos import detect_landmarks
+
+            out.append(detect_landmarks(np.asarray(Image.open(p).convert("RGB")), source=str(p)))
+    return np.stack(out), sizes.pop()
+
+
+def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
+                    detect: bool = False, frames_dir=None):
+    """Landmarks of the sampled frames of one video -> ((k, 68, 2) px, (W, H), description)."""
+    if frames_dir is not None:
+        lm, size = _frames_from_folder(Path(frames_dir), condition, n_sampled)
+        return lm, size, {"source": str(Path(frames_dir) / condition)}
+    video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
+                            n_sampled=n_sampled, seed=seed)
+    lm = video.sampled_landmarks()
+    desc = {"source": "synthetic", "poses_deg": video.poses_deg[video.sampled].round(2).tolist(),
+            "frames": video.sampled.tolist(), "image_size": list(video.image_size)}
+    if detect:
+        from .videos import detect_landmarks, render_frames
+
+        images = render_frames(scan, video, seed=seed)
+        lm = np.stack([detect_landmarks(im) for im in images])
+        desc["landmarks"] = "dlib on rendered frames"
+    else:
+        desc["landmarks"] = "projected scan landmarks + noise"
+    desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
+    return lm, video.image_size, desc
+
+
+def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
+                 seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
+                 radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
+                 landmark_scale: bool = True, log=None):
+    """Run every method on every condition.
+
+    Returns
+    -------
+    report : dict shaped ``{"methods": {m: {c: cell}}, "metric", "alignment", "videos", ...}``
+    errors : dict ``"method/condition"`` -> (V,) per-vertex point-to-plane errors (NaN outside
+        the crop), plus ``".../vertices"`` and ``".../triangles"`` of the aligned meshes
+    """
+    efforts = efforts or {}
+    for m in methods:
+        if m not in METHODS:
+            raise InputError(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
+    for c in conditions:
+        if c not in CONDITIONS:
+            raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+    report = {"methods": {m: {} for m in methods}, "videos": {}}
+    errors = {}
+    peers = {}
+    alignment = None
+    for c in conditions:
+        lm, size, desc = video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect, frames_dir)
+        report["videos"][c] = desc
+        for m in methods:
+            try:
+                rec = reconstruct(m, model, lm, size, efforts.get(m), peers)
+                cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
+            except FitError as e:
+                cell, cmp = {"error": str(e)}, None
+            report["methods"][m][c] = cell
+            if cmp is not None:
+                errors[f"{m}/{c}"] = cmp.per_vertex("point_to_plane")
+                errors[f"{m}/{c}/vertices"] = cmp.aligned_vertices
+                errors[f"{m}/{c}/triangles"] = rec.triangles
+                alignment = alignment or {k: v for k, v in cmp.alignment.items() if k != "transform"}
+            if log:
+                log(f"{m:>17s} {c:<12s} " + (f"{cell['mean_mm']:.3f} mm, {cell['s_per_frame']:.3f} s/frame"
+                                            if "mean_mm" in cell else cell["error"]))
+    report["metric"] = METRIC.format(r=radius)
+    report["alignment"] = {
+        "landmarks": "similarity (Umeyama, with scale)" if landmark_scale else "rigid (Umeyama)",
+        "icp": ("open3d point-to-point ICP with scale, then point-to-plane ICP (rigid)" if icp_scale
+                else "open3d point-to-plane ICP (rigid)") if icp else "none",
+        "crop": f"sphere of {radius:g} mm around the nose tip (iBUG 31) on scan and reconstruction",
+        "example": alignment}
+    report["scan"] = {"path": scan.source, "units": scan.units,
+                      "interocular_mm": round(scan.interocular_mm, 2),
+                      "n_landmarks": int(np.isfinite(scan.landmarks).all(1).sum())}
+    report["settings"] = {"model": model.name, "frames": n_sampled, "video_frames": n_frames,
+                          "seed": seed, "detect": detect, "efforts": efforts}
+    return report, errors
+
+
+def format_table(report: dict) -> str:
+    """The paper-shaped table: method x condition, mean ± std (mm), seconds per frame; then
+    the same reconstructions under the other metrics."""
+    methods = list(report["methods"])
+    conds = list(next(iter(report["methods"].values()), {}))
+    w = 16
+    head = f"{'method':<18}" + "".join(f"{c:>{w}}" for c in conds) + f"{'s/frame':>10}"
+    lines = [f"point-to-plane error, mm (mean ± std over vertices); {report['settings']['frames']} "
+             f"frames per video, model {report['settings']['model']}", head, "-" * len(head)]
+    for m in methods:
+        row, secs = f"{m:<18}", []
+        for c in conds:
+            cell = report["methods"][m][c]
+            if "mean_mm" in cell:
+                row += f"{cell['mean_mm']:>{w - 7}.3f} ± {cell['std_mm']:.3f}"
+                secs.append(cell["s_per_frame"])
+            else:
+                row += f"{'failed':>{w}}"
+        row += f"{np.mean(secs):>10.3f}" if secs else f"{'-':>10}"
+        lines.append(row)
+    lines += ["", "same reconstructions, other metrics (mean mm): point-to-surface / "
+              "scan->reconstruction / symmetric"]
+    for m in methods:
+        row = f"{m:<18}"
+        for c in conds:
+            cell = report["methods"][m][c]
+            row += (f"  {cell['point_to_surface_mm']:.2f}/{cell['scan_to_recon_mm']:.2f}/"
+                    f"{cell['symmetric_mm']:.2f}" if "mean_mm" in cell else "  failed")
+        lines.append(row)
+    return "\n".join(lines)
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="python -m evaluation.florence", description=__doc__.split("\n")[0])
+    p.add_argument("--scan", required=True, help="scan mesh (OBJ, PLY, STL...)")
+    p.add_argument("--scan-landmarks", required=True,
+                   help="68 or 51 (inner) 3D landmarks: .ljson, .npy, .txt (N x 3) or .pts")
+    p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
+    p.add_argument("--methods", nargs="+", default=["ours", "eos", "mean-face"])
+    p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
+    p.add_argument("--frames", type=int, default=5, help="frames sampled per video")
+    p.add_argument("--video-frames", type=int, default=30, help="length of a synthetic video")
+    p.add_argument("--model", default="sfm", help="model for ours/mean-face (sfm, ict or a path)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--detect", action="store_true",
+                   help="landmarks from dlib on rendered frames instead of projected scan landmarks")
+    p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
+    p.add_argument("--iterations", type=int, help="iterations of ours (default: the fitter's)")
+    p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
+    p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
+    p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
+    p.add_argument("--rigid", action="store_true", help="rigid landmark alignment (no scale)")
+    p.add_argument("--report", required=True, help="JSON report to write")
+    p.add_argument("--errors", help="per-vertex errors .npz (default: beside the report)")
+    return p
+
+
+def _write_outputs(report: dict, errors: dict, report_path: Path, errors_path: Path):
+    from morphable.io.atomic import atomic_path
+
+    with atomic_path(errors_path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **errors)
+    with atomic_path(report_path) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        report_path = Path(args.report)
+        errors_path = Path(args.errors) if args.errors else report_path.with_name(report_path.stem + "_errors.npz")
+        for p in (report_path, errors_path):
+            if not p.parent.is_dir() and str(p.parent):
+                raise InputError(f"{p}: output folder {p.parent} does not exist")
+        if args.frames < 1 or args.video_frames < args.frames:
+            raise InputError(f"--frames {args.frames}: need 1 <= frames <= --video-frames "
+                             f"({args.video_frames})")
+        from morphable import load_model
+
+        model = load_model(args.model)
+        scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
+        efforts = {}
+        if args.iterations:
+            efforts = {"ours": {"n_iterations": args.iterations},
+                       "ours-independent": {"n_iterations": args.iterations}}
+        report, errors = run_protocol(
+            scan, model, args.methods, args.conditions, args.frames, args.video_frames, args.seed,
+            detect=args.detect, frames_dir=args.frames_dir, efforts=efforts, radius=args.radius,
+            icp=not args.no_icp, icp_scale=args.icp_scale, landmark_scale=not args.rigid,
+            log=lambda s: print(s, file=sys.stderr))
+        report["command"] = "python -m evaluation.florence " + " ".join(
+            sys.argv[1:] if argv is None else argv)
+        print(format_table(report))
+        _write_outputs(report, errors, report_path, errors_path)
+    except MorphableError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""The Florence protocol on any scan: scans, synthetic videos, the command (small settings)."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from morphable.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def james_paths(data_dir):
+    d = data_dir / "scans" / "james"
+    return d / "james.obj", d / "james.ljson"
+
+
+@pytest.fixture(scope="module")
+def james(james_paths):
+    from evaluation.scans import load_scan
+
+    return load_scan(*james_paths)
+
+
+# --- scans ---------------------------------------------------------------------------------
+def test_james_landmarks_in_ibug_order(james):
+    lm = james.landmarks
+    assert james.units == "mm" and 60 < james.interocular_mm < 70
+    # x to the subject's left: the right eye (iBUG 37-42) has the smaller x; y up; nose in front
+    assert lm[36:42, 0].mean() < lm[42:48, 0].mean()
+    assert lm[8, 1] < lm[30, 1] < lm[27, 1]
+    assert lm[30, 2] > lm[36:48, 2].max()
+
+
+def test_landmark_formats_and_units(james, tmp_path):
+    from evaluation.scans import detect_units, read_scan_landmarks
+
+    lm = james.landmarks
+    np.save(tmp_path / "a.npy", lm)
+    np.savetxt(tmp_path / "inner.txt", lm[17:] / 10.0)
+    (tmp_path / "b.pts").write_text("version: 1\nn_points: 68\n{\n"
+                                    + "\n".join(" ".join(f"{c:.6f}" for c in p) for p in lm) + "\n}\n")
+    np.testing.assert_allclose(read_scan_landmarks(tmp_path / "a.npy"), lm)
+    np.testing.assert_allclose(read_scan_landmarks(tmp_path / "b.pts"), lm, atol=1e-5)
+    inner = read_scan_landmarks(tmp_path / "inner.txt")
+    assert np.isnan(inner[:17]).all() and np.allclose(inner[17:] * 10, lm[17:], atol=1e-5)
+    assert detect_units(inner) == "cm" and detect_units(lm) == "mm" and detect_units(lm / 1000) == "m"
+    with pytest.raises(InputError, match="units"):
+        detect_units(lm * 5000)
+    np.save(tmp_path / "bad.npy", lm[:40])
+    with pytest.raises(InputError, match="bad.npy: expected 68 or 51"):
+        read_scan_landmarks(tmp_path / "bad.npy")
+
+
+# --- videos --------------------------------------------------------------------------------
+def test_trajectories_follow_the_conditions():
+    from evaluation.videos import CONDITIONS, sample_frames, trajectory
+
+    for name, c in CONDITIONS.items():
+        p = trajectory(c, 30, rng=1)
+        assert np.abs(p[:, 0]).max() <= c.yaw_deg + 1e-9 and np.abs(p[:, 0]).max() > 0.9 * c.yaw_deg
+        assert np.abs(p[:, 1]).max() <= c.pitch_deg + 1e-9
+    np.testing.assert_array_equal(sample_frames(10, 1), [0])
+    with pytest.raises(InputError):
+        sample_frames(3, 5)
+
+
+def test_projected_landmarks(james, sfm):
+    from evaluation.videos import synthetic_video
+
+    ref = sfm.landmark_positions()
+    coop = synthetic_video(james, "cooperative", ref, n_frames=10, n_sampled=3, seed=0)
+    out = synthetic_video(james, "outdoor", ref, n_frames=10, n_sampled=3, seed=0)
+    assert coop.sampled_landmarks().shape == (3, 68, 2) and coop.image_size == (512, 512)
+    assert out.image_size == (256, 256)
+    # near-frontal: every point visible, inner points = projection + ~1 px noise
+    lm = coop.landmarks
+    assert np.isfinite(lm).all()
+    proj = np.stack([c.project(james.landmarks) for c in coop.cameras])
+    d = np.linalg.norm(lm[:, 17:] - proj[:, 17:], axis=-1)
+    assert 0.5 < d.mean() < 2.0
+    # at +-45 degrees of yaw some inner points are hidden and the far jaw leaves the landmark
+    # for the outline (closer to the image centre of the face)
+    far = np.argmax(np.abs(out.poses_deg[:, 0]))
+    assert np.isnan(out.landmarks[far, 17:, 0]).any()
+    same = synthetic_video(james, "outdoor", ref, n_frames=10, n_sampled=3, seed=0)
+    np.testing.assert_array_equal(np.isnan(same.landmarks), np.isnan(out.landmarks))
+    np.testing.assert_allclose(np.nan_to_num(same.landmarks), np.nan_to_num(out.landmarks))
+
+
+def test_jaw_points_sit_on_the_silhouette(james, sfm):
+    from evaluation.videos import frontal_frame, project_landmarks
+    from morphable.camera import Camera
+
+    frame = frontal_frame(james.landmarks, sfm.landmark_positions())
+    centre = frame.apply(np.nanmean(james.landmarks, 0)[None])[0]
+    for yaw in (-40.0, 40.0):
+        c = Camera.looking_at_face((512, 512), yaw=yaw, kind="affine", center=centre)
+        cam = Camera(kind="affine", rotation=c.rotation @ frame.rotation,
+                     translation=c.rotation @ frame.translation + c.translation, scale=c.scale,
+                     image_size=(512, 512))
+        lm = project_landmarks(james, [cam], frame)[0]
+        raw = cam.project(james.landmarks)
+        # positive yaw turns the nose to the image's right: the subject's left jaw (iBUG 10-17)
+        # is the far side
+        far, near = (slice(9, 16), slice(1, 8)) if yaw > 0 else (slice(1, 8), slice(9, 16))
+        moved = np.linalg.norm(lm[far] - raw[far], axis=1)
+        assert moved.mean() > 5.0
+        assert np.linalg.norm(lm[near] - raw[near], axis=1).mean() < moved.mean() / 2
+        # the far-side points are outermost: no face vertex at that height lies farther out
+        sign = 1.0 if yaw > 0 else -1.0
+        verts = cam.project(james.vertices)
+        head = frame.apply(james.vertices)
+        for j in range(far.start, far.stop):
+            y = frame.apply(james.landmarks[j][None])[0, 1]
+            band = (np.abs(head[:, 1] - y) < 3) & (head[:, 2] > frame.apply(james.landmarks[j][None])[0, 2])
+            assert sign * (verts[band, 0] - lm[j, 0]).max() < 3.0
+
+
+# --- the protocol --------------------------------------------------------------------------
+def model_scan(model, alpha):
+    from evaluation.scans import Scan
+
+    return Scan(vertices=model.vertices(alpha), triangles=model.triangles,
+                landmarks=model.landmark_positions(alpha), source="model sample")
+
+
+def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
+    pytest.importorskip("morphable.fitting")
+    from evaluation.florence import run_protocol
+
+    rng = np.random.default_rng(0)
+    scan = model_scan(sfm, rng.standard_normal(sfm.n_identity) * 1.5)
+    report, errors = run_protocol(scan, sfm, ["ours", "mean-face"], ["cooperative", "outdoor"],
+                                  n_sampled=3, n_frames=10, seed=0)
+    for c in ("cooperative", "outdoor"):
+        ours, mean = report["methods"]["ours"][c], report["methods"]["mean-face"][c]
+        # clear margin with small noise; outdoor (3 px at 256 px) only has to beat the mean
+        margin = 0.8 if c == "cooperative" else 1.0
+        assert ours["mean_mm"] < margin * mean["mean_mm"], (c, ours, mean)
+        e = errors[f"ours/{c}"]
+        assert e.shape == (sfm.n_vertices,) and np.isfinite(e).sum() == ours["n_vertices"]
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "evaluation.florence", *map(str, args)],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+
+
+def test_command_on_james(james_paths, tmp_path):
+    methods = ["mean-face", "eos"]
+    try:
+        import morphable.fitting  # noqa: F401
+        methods.insert(0, "ours")
+    except ImportError:
+        pass
+    report = tmp_path / "r.json"
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--methods", *methods,
+                "--conditions", "cooperative", "outdoor", "--frames", "2", "--video-frames", "6",
+                "--report", report)
+    assert r.returncode == 0, r.stderr
+    assert "cooperative" in r.stdout and "± " in r.stdout and "s/frame" in r.stdout
+    rep = json.loads(report.read_text())
+    assert set(rep) >= {"methods", "metric", "alignment"} and "point-to-plane" in rep["metric"]
+    for m in methods:
+        for c in ("cooperative", "outdoor"):
+            cell = rep["methods"][m][c]
+            assert set(cell) >= {"mean_mm", "std_mm", "median_mm", "s_per_frame"}
+            assert 0.2 < cell["mean_mm"] < 5.0
+    assert rep["methods"]["mean-face"]["cooperative"]["s_per_frame"] == 0.0
+    errs = np.load(tmp_path / "r_errors.npz")
+    assert errs["mean-face/outdoor"].shape == (3448,)
+
+
+def test_command_bad_input_one_line_no_output(james_paths, tmp_path):
+    report = tmp_path / "r.json"
+    r = run_cli("--scan", tmp_path / "missing.obj", "--scan-landmarks", james_paths[1],
+                "--methods", "mean-face", "--report", report)
+    assert r.returncode == 2 and "missing.obj" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not report.exists() and list(tmp_path.iterdir()) == []
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--methods", "magic",
+                "--report", report)
+    assert r.returncode == 2 and "magic" in r.stderr and not report.exists()
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--report",
+                tmp_path / "nowhere" / "r.json")
+    assert r.returncode == 2 and "nowhere" in r.stderr
