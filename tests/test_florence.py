@@ -187,3 +187,20 @@ def test_command_bad_input_one_line_no_output(james_paths, tmp_path):
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--report",
                 tmp_path / "nowhere" / "r.json")
     assert r.returncode == 2 and "nowhere" in r.stderr
+
+
+def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
+    from evaluation import report
+
+    monkeypatch.setitem(report.EFFORTS, "eos", [
+        {"label": f"{k} frames", "frames": k, "settings": {"num_iterations": 1}} for k in (1, 3)])
+    result = report.run(james, sfm, ["eos", "mean-face"], ["outdoor"], video_frames=6)
+    assert [p["frames"] for p in result["points"]] == [1, 3, 1]
+    eos = [p for p in result["points"] if p["method"] == "eos"]
+    assert all(p["s_per_video"] > 0 and 0.2 < p["mean_mm"] < 5 for p in eos)
+    paths = report.write_outputs(result, tmp_path)
+    assert [p.name for p in paths] == ["error_vs_runtime.png", "error_vs_runtime.json",
+                                       "error_vs_runtime.md"]
+    assert paths[0].stat().st_size > 10_000 and "| eos | 3 frames |" in paths[2].read_text()
+    with pytest.raises(InputError, match="video-frames"):
+        report.run(james, sfm, ["eos"], ["outdoor"], video_frames=2)

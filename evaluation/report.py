@@ -1,0 +1,192 @@
+"""Error against run time: the Florence protocol at several effort levels per method.
+
+Each method runs at a few effort levels (frames per video 1/3/5/10, iterations, identity
+modes) on every condition; each level gives one point (seconds per video, mean
+point-to-plane error over the conditions). Writes ``reports/error_vs_runtime.png`` (one curve
+per method), ``.json`` and ``.md``::
+
+    python -m evaluation.report            # the james scan from ../shared/data
+    python -m evaluation.report --scan S --scan-landmarks L --out reports
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from morphable.errors import FitError, InputError, MorphableError
+
+from .florence import evaluate, reconstruct, video_landmarks
+from .scans import UNITS, load_scan
+from .videos import CONDITIONS
+
+__all__ = ["EFFORTS", "run", "write_outputs", "main"]
+
+_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "scans" / "james"
+
+FRAMES = (1, 3, 5, 10)
+EFFORTS = {
+    "ours": [{"label": f"{k} frames, {it} iterations", "frames": k, "settings": {"n_iterations": it}}
+             for it in (0, 8) for k in FRAMES]
+    + [{"label": "5 frames, 20 identity modes", "frames": 5, "settings": {"n_identity": 20}}],
+    "ours-independent": [{"label": f"{k} frames", "frames": k, "settings": {}} for k in FRAMES],
+    "eos": [{"label": f"{k} frames, {it} iterations", "frames": k, "settings": {"num_iterations": it}}
+            for it in (1, 5) for k in FRAMES],
+    "mean-face": [{"label": "no fitting", "frames": 1, "settings": {}}],
+}
+"""Effort levels per method: frames per video and the method's own settings."""
+
+
+def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30, log=None) -> dict:
+    """Evaluate every effort level -> ``{"points": [...], "methods", "conditions", ...}``.
+
+    Each point: method, label, frames, settings, ``s_per_video`` (mean over conditions),
+    ``mean_mm`` (mean over conditions of the per-video mean error), ``per_condition``.
+    """
+    for m in methods:
+        if m not in EFFORTS:
+            raise InputError(f"no effort levels for method {m!r}; choose from {', '.join(EFFORTS)}")
+    frames = sorted({e["frames"] for m in methods for e in EFFORTS[m]})
+    if max(frames) > video_frames:
+        raise InputError(f"--video-frames {video_frames}: effort levels need {max(frames)} frames")
+    videos = {(c, k): video_landmarks(scan, model, c, k, video_frames, seed)
+              for c in conditions for k in frames}
+    points, peers = [], {}
+    for m in methods:
+        for effort in EFFORTS[m]:
+            per, secs = {}, []
+            for c in conditions:
+                lm, size, _ = videos[(c, effort["frames"])]
+                try:
+                    rec = reconstruct(m, model, lm, size, effort["settings"], peers)
+                    cell, _ = evaluate(rec, scan)
+                except FitError as e:
+                    per[c] = {"error": str(e)}
+                    continue
+                per[c] = {"mean_mm": cell["mean_mm"], "std_mm": cell["std_mm"],
+                          "s_per_video": rec.seconds}
+                secs.append(rec.seconds)
+            ok = [p["mean_mm"] for p in per.values() if "mean_mm" in p]
+            point = {"method": m, "label": effort["label"], "frames": effort["frames"],
+                     "settings": effort["settings"], "per_condition": per,
+                     "s_per_video": float(np.mean(secs)) if secs else None,
+                     "mean_mm": float(np.mean(ok)) if len(ok) == len(conditions) else None}
+            points.append(point)
+            if log:
+                log(f"{m:>17s} {effort['label']:<28s} "
+                    + (f"{point['mean_mm']:.3f} mm  {point['s_per_video']:.3f} s/video"
+                       if point["mean_mm"] is not None else "failed"))
+    return {"points": points, "methods": list(methods), "conditions": list(conditions),
+            "scan": scan.source, "model": model.name, "seed": seed, "video_frames": video_frames,
+            "metric": "point-to-plane mm, mean over vertices, then over conditions"}
+
+
+def _markdown(result: dict) -> str:
+    conds = result["conditions"]
+    lines = [f"Error against run time on `{Path(result['scan']).name}` (model {result['model']}, "
+             f"seed {result['seed']}); error = point-to-plane mm, mean over vertices.", "",
+             "| method | effort | s / video | " + " | ".join(conds) + " | mean |",
+             "| --- | --- | ---: | " + " | ".join("---:" for _ in conds) + " | ---: |"]
+    for p in result["points"]:
+        cells = [f"{p['per_condition'][c]['mean_mm']:.3f}" if "mean_mm" in p["per_condition"][c]
+                 else "failed" for c in conds]
+        secs = "-" if p["s_per_video"] is None else f"{p['s_per_video']:.3f}"
+        mean = "-" if p["mean_mm"] is None else f"**{p['mean_mm']:.3f}**"
+        lines.append(f"| {p['method']} | {p['label']} | {secs} | " + " | ".join(cells) + f" | {mean} |")
+    return "\n".join(lines) + "\n"
+
+
+def _plot(result: dict, path: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for m in result["methods"]:
+        pts = [p for p in result["points"] if p["method"] == m and p["mean_mm"] is not None]
+        if not pts:
+            continue
+        if all(p["s_per_video"] == 0 for p in pts):  # no fitting: a floor, not a curve
+            ax.axhline(pts[0]["mean_mm"], ls="--", color="gray", label=f"{m} (no fitting)")
+            continue
+        pts.sort(key=lambda p: p["s_per_video"])
+        x = np.array([max(p["s_per_video"], 1e-4) for p in pts])
+        y = np.array([p["mean_mm"] for p in pts])
+        # the curve is the best error reached within each time budget; every level is a dot
+        front = y <= np.minimum.accumulate(y)
+        line, = ax.plot(x[front], y[front], "-", label=m)
+        ax.plot(x, y, "o", color=line.get_color(), alpha=0.8, ms=4)
+        for p, xi in zip(pts, x):
+            ax.annotate(str(p["frames"]), (xi, p["mean_mm"]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("seconds per video (fitting only)")
+    ax.set_ylabel("point-to-plane error (mm)")
+    ax.set_title(f"Error vs run time, {Path(result['scan']).name}, mean of "
+                 f"{'/'.join(result['conditions'])}\n(dots: effort levels labelled with frames per "
+                 f"video; lines: best error within a time budget)", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_outputs(result: dict, out: Path, stem: str = "error_vs_runtime") -> list:
+    """Write ``stem``.png/.json/.md into ``out`` (atomically) -> the paths."""
+    from morphable.io.atomic import atomic_path
+
+    paths = [out / f"{stem}.{ext}" for ext in ("png", "json", "md")]
+    with atomic_path(paths[0]) as tmp:
+        _plot(result, tmp)
+    with atomic_path(paths[1]) as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
+    with atomic_path(paths[2]) as tmp:
+        tmp.write_text(_markdown(result))
+    return paths
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m evaluation.report", description=__doc__.split("\n")[0])
+    p.add_argument("--scan", default=str(_DATA / "james.obj"))
+    p.add_argument("--scan-landmarks", default=str(_DATA / "james.ljson"))
+    p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
+    p.add_argument("--methods", nargs="+", default=["ours", "ours-independent", "eos", "mean-face"])
+    p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
+    p.add_argument("--model", default="sfm")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--video-frames", type=int, default=30)
+    p.add_argument("--out", default="reports", help="output folder (created if missing)")
+    args = p.parse_args(argv)
+    try:
+        for c in args.conditions:
+            if c not in CONDITIONS:
+                raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+        from morphable import load_model
+
+        model = load_model(args.model)
+        scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
+        result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
+                     log=lambda s: print(s, file=sys.stderr))
+        out = Path(args.out)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise InputError(f"{out}: cannot create the output folder ({e.strerror or e})") from None
+        result["command"] = "python -m evaluation.report " + " ".join(
+            sys.argv[1:] if argv is None else argv)
+        paths = write_outputs(result, out)
+        print(_markdown(result))
+        print("wrote " + ", ".join(map(str, paths)))
+    except MorphableError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
