@@ -1,0 +1,350 @@
+"""Landmark fitting benchmark: morphable's ``fit_landmarks`` against eos' ``fit_shape_and_pose``.
+
+Synthetic ground truth with the Surrey Face Model: random identities (alpha ~ N(0, 1)),
+random blendshape expressions, poses with yaw in [-80, 80], pitch and roll in [-30, 30]
+degrees, a scaled orthographic camera on a 512 px image, landmark noise sigma in {0, 1, 3} px.
+Jaw landmarks are placed as a detector would: along the model's jaw line (between its
+contour vertices, not on them), and where that line is self-occluded (back-facing) moved
+outwards onto the face's 2D outline.
+
+Both tools get the same landmarks; their meshes are compared with the ground truth after a
+similarity alignment over all vertices. Landmark RMSE is computed the same way for both
+(fixed landmarks to their vertices, jaw points to the nearest point of the projected jaw line).
+
+Run::
+
+    python -m evaluation.bench_fitting --n 300 --report reports/bench_fitting.json
+
+It also sweeps our iteration count and number of identity modes (``error_vs_runtime.json``
+and ``error_vs_runtime.png`` next to the report) and fits ``image_0010`` with both tools.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+# one BLAS thread: the small solves of both tools gain nothing from more, and timings stay stable
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+from morphable import load_model
+from morphable.camera import Camera, euler_to_matrix
+from morphable.fitting import fit_landmarks, landmark_bank
+from morphable.fitting.correspondences import (Correspondences, _expected_jaw_points,
+                                               march_lines, slide_contours)
+from morphable.io.atomic import atomic_path
+from morphable.normals import vertex_normals
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SFM = DATA / "models" / "sfm"
+IMAGE = 512
+NOISE = (0.0, 1.0, 3.0)
+YAW_BINS = (0, 20, 40, 60, 80.001)
+FAIL_MM = 10.0
+
+
+# --- ground truth -------------------------------------------------------------------------
+def similarity_error(fitted, truth):
+    """Mean per-vertex distance (mm) after the best similarity transform fitted -> truth (Umeyama)."""
+    mu_f, mu_t = fitted.mean(0), truth.mean(0)
+    F, T = fitted - mu_f, truth - mu_t
+    U, S, Vt = np.linalg.svd(T.T @ F)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.diag([1.0, 1.0, d])
+    R = U @ D @ Vt
+    s = (S * np.diag(D)).sum() / (F ** 2).sum()
+    aligned = s * F @ R.T + mu_t
+    return float(np.linalg.norm(aligned - truth, axis=1).mean())
+
+
+def make_sample(model, rng):
+    """One synthetic face: ground-truth mesh, camera, clean landmarks (68, 2).
+
+    Jaw points lie on the jaw line, evenly spaced from the top to the chin and generally
+    between vertices; where the jaw line faces away from the camera (ground-truth normals)
+    the point marches along its horizontal line of vertices to the first one facing the
+    camera, the cheek's silhouette, where a 68-point detector puts it.
+    """
+    alpha = rng.standard_normal(model.n_identity)
+    beta = rng.uniform(0, 0.7, model.n_expression) * (rng.uniform(size=model.n_expression) < 0.4)
+    yaw, pitch, roll = rng.uniform(-80, 80), rng.uniform(-30, 30), rng.uniform(-30, 30)
+    verts = model.vertices(alpha, beta)
+    cam = Camera(kind="affine", rotation=euler_to_matrix(yaw, pitch, roll),
+                 translation=np.r_[rng.uniform(-10, 10, 2), -600.0], scale=rng.uniform(1.3, 1.9),
+                 image_size=(IMAGE, IMAGE))
+    lms = np.full((68, 2), np.nan)
+    fixed = model.landmark_ids >= 0
+    lms[fixed] = cam.project(verts[model.landmark_ids[fixed]])
+    normals = vertex_normals(verts, model.triangles) @ cam.rotation.T
+    bank = landmark_bank(model)
+    for lms_side, chain in bank.polylines:
+        chain_ids = bank.vertex_ids[chain]
+        _, at, mean_arc = _expected_jaw_points(model, lms_side, chain_ids)
+        P, Nz = verts[chain_ids], normals[chain_ids, 2]
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+        at = at / mean_arc[-1] * arc[-1]
+        lines = march_lines(model, lms_side, chain_ids)
+        for j, a, line in zip(lms_side, at, lines):
+            p = np.array([np.interp(a, arc, P[:, k]) for k in range(3)])
+            if np.interp(a, arc, Nz) < 0:
+                front = np.flatnonzero(normals[line, 2] >= 0)
+                p = verts[line[front[0] if front.size else -1]]
+            lms[j] = cam.project(p[None])[0]
+    return {"verts": verts, "alpha": alpha, "beta": beta, "yaw": yaw, "pitch": pitch,
+            "roll": roll, "landmarks": lms}
+
+
+# --- eos ----------------------------------------------------------------------------------
+class EosFitter:
+    """eos-py's fit_shape_and_pose with the SFM files from the shared data folder."""
+
+    def __init__(self):
+        import eos
+
+        self.eos = eos
+        shape = eos.morphablemodel.load_model(str(SFM / "sfm_shape_3448.bin"))
+        blend = eos.morphablemodel.load_blendshapes(str(SFM / "expression_blendshapes_3448.bin"))
+        self.model = eos.morphablemodel.MorphableModel(
+            shape.get_shape_model(), blend, color_model=eos.morphablemodel.PcaModel(),
+            vertex_definitions=None, texture_coordinates=shape.get_texture_coordinates())
+        self.mapper = eos.core.LandmarkMapper(str(SFM / "ibug_to_sfm.txt"))
+        self.edges = eos.morphablemodel.load_edge_topology(str(SFM / "sfm_3448_edge_topology.json"))
+        self.contour_lms = eos.fitting.ContourLandmarks.load(str(SFM / "ibug_to_sfm.txt"))
+        self.contour = eos.fitting.ModelContour.load(str(SFM / "sfm_model_contours.json"))
+
+    def fit(self, landmarks, image_size):
+        eos = self.eos
+        lms = [eos.core.Landmark(str(i + 1), p.astype(np.float32))
+               for i, p in enumerate(landmarks) if np.isfinite(p).all()]
+        W, H = image_size
+        mesh, rp, alpha, beta = eos.fitting.fit_shape_and_pose(
+            self.model, lms, self.mapper, W, H, self.edges, self.contour_lms, self.contour)
+        verts = np.asarray(mesh.vertices, dtype=np.float64)
+        rotation = np.asarray(rp.get_modelview(), dtype=np.float64)[:3, :3]
+        return verts, self.projector(rp, W, H), rotation
+
+    @staticmethod
+    def projector(rp, W, H):
+        """World points -> pixels with eos' modelview, ortho projection and (flipped) viewport."""
+        MV = np.asarray(rp.get_modelview(), dtype=np.float64)
+        P = np.asarray(rp.get_projection(), dtype=np.float64)
+
+        def project(X):
+            Xh = np.c_[X, np.ones(len(X))] @ (P @ MV).T
+            return np.c_[(Xh[:, 0] + 1) / 2 * W, H - (Xh[:, 1] + 1) / 2 * H]
+        return project
+
+
+def landmark_rmse(model, rotation, project, verts, landmarks):
+    """RMS px over all landmarks and over the inner ones (iBUG 18-68), the same way for every
+    tool: fixed landmarks to their projected vertices, jaw points to the nearest point of the
+    projected jaw line, or where that is self-occluded to the silhouette vertex of their
+    horizontal line (the rules of ``morphable.fitting.correspondences``)."""
+    bank = landmark_bank(model)
+    given = np.isfinite(landmarks).all(1)
+    y = np.where(given[:, None], landmarks, 0.0)[None]
+    corr = Correspondences.fixed(bank, 1)
+    uv_rows = project(verts[bank.vertex_ids])
+    slide_contours(bank, corr, [uv_rows[None, c] for _, c in bank.polylines], y, given[None],
+                   np.asarray(rotation, dtype=np.float64)[None])
+    a, b, w = corr.a[0], corr.b[0], corr.w[0]
+    ok = given & (a >= 0)
+    uv = (1 - w[:, None]) * uv_rows[np.maximum(a, 0)] + w[:, None] * uv_rows[np.maximum(b, 0)]
+    d2 = ((uv - landmarks) ** 2).sum(1)
+    inner = ok & (np.arange(68) >= 17)
+    return float(np.sqrt(d2[ok].mean())), float(np.sqrt(d2[inner].mean()))
+
+
+# --- runs ---------------------------------------------------------------------------------
+def _summary(recs):
+    e = np.asarray([r["err_mm"] for r in recs], dtype=np.float64)
+    fails = int((~np.isfinite(e) | (e > FAIL_MM)).sum())
+    ok = e[np.isfinite(e)]
+    ms = [r["ms"] for r in recs if np.isfinite(r["ms"])]
+    return {"n": len(e), "mean_mm": float(ok.mean()) if ok.size else None,
+            "median_mm": float(np.median(ok)) if ok.size else None,
+            "landmark_rmse_px": float(np.nanmean([r["rmse"] for r in recs])),
+            "inner_rmse_px": float(np.nanmean([r["inner"] for r in recs])),
+            "ms_per_fit_median": float(np.median(ms)) if ms else None,
+            "failures": fails}
+
+
+def _record(model, verts, rotation, project, truth, landmarks, ms):
+    rmse, inner = landmark_rmse(model, rotation, project, verts, landmarks)
+    return {"err_mm": similarity_error(verts, truth), "rmse": rmse, "inner": inner, "ms": ms}
+
+
+_FAILED = {"err_mm": np.inf, "rmse": np.nan, "inner": np.nan, "ms": np.nan}
+
+
+def run(n, seed=0, sweep_n=100, out=Path("reports/bench_fitting.json"), eos_on=True, **fit_kw):
+    model = load_model("sfm")
+    rng = np.random.default_rng(seed)
+    samples = [make_sample(model, rng) for _ in range(n)]
+    eos_fitter = EosFitter() if eos_on else None
+    noise_rng = np.random.default_rng(seed + 1)
+    fit_landmarks(model, samples[0]["landmarks"], (IMAGE, IMAGE), **fit_kw)     # warm caches
+    table = {}
+    for sigma in NOISE:
+        lms = np.stack([s["landmarks"] for s in samples])
+        lms = lms + sigma * noise_rng.standard_normal(lms.shape)
+        per = {"ours": [], "eos": []}
+        for i, s in enumerate(samples):
+            t = time.perf_counter()
+            try:
+                res = fit_landmarks(model, lms[i], (IMAGE, IMAGE), **fit_kw)
+                ms = (time.perf_counter() - t) * 1e3
+                cam = res.cameras[0]
+                per["ours"].append(_record(model, res.vertices(0), cam.rotation, cam.project,
+                                           s["verts"], lms[i], ms))
+            except Exception as e:  # a failure counts, the benchmark goes on
+                per["ours"].append(dict(_FAILED, error=str(e)))
+            if eos_fitter is not None:
+                t = time.perf_counter()
+                try:
+                    v, proj, rot = eos_fitter.fit(lms[i], (IMAGE, IMAGE))
+                    ms = (time.perf_counter() - t) * 1e3
+                    per["eos"].append(_record(model, v, rot, proj, s["verts"], lms[i], ms))
+                except Exception as e:
+                    per["eos"].append(dict(_FAILED, error=str(e)))
+        # batch mode: all images of this noise level in one vectorised call
+        t = time.perf_counter()
+        bres = fit_landmarks(model, lms, (IMAGE, IMAGE), shared_identity=False, **fit_kw)
+        batch_ms = (time.perf_counter() - t) * 1e3 / n
+        per["ours_batch"] = [
+            _record(model, bres.vertices(i), bres.cameras[i].rotation, bres.cameras[i].project,
+                    s["verts"], lms[i], batch_ms) for i, s in enumerate(samples)]
+        level = {}
+        for tool, recs in per.items():
+            if not recs:
+                continue
+            level[tool] = _summary(recs)
+            level[tool]["by_abs_yaw"] = {}
+            for lo, hi in zip(YAW_BINS[:-1], YAW_BINS[1:]):
+                e = np.asarray([r["err_mm"] for r, s in zip(recs, samples) if lo <= abs(s["yaw"]) < hi])
+                level[tool]["by_abs_yaw"][f"{lo:.0f}-{hi:.0f}"] = {
+                    "n": len(e), "mean_mm": float(e[np.isfinite(e)].mean()) if len(e) else None}
+        level["ours_batch"]["ms_per_image"] = batch_ms
+        table[f"sigma_{sigma:g}"] = level
+        _print_level(sigma, level)
+    report = {"n": n, "seed": seed, "image_px": IMAGE, "fit_kwargs": {k: str(v) for k, v in fit_kw.items()},
+              "table": table, "image_0010": image_0010(model, eos_fitter, **fit_kw)}
+    if sweep_n:
+        report["sweep"] = sweep(model, samples[:sweep_n], eos_fitter, out.parent, seed)
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
+    return report
+
+
+def _print_level(sigma, level):
+    print(f"\nnoise sigma = {sigma:g} px   (3D error: mean over all vertices after similarity alignment)")
+    print(f"{'tool':<11}{'mean mm':>8}{'median':>8}{'lmk px':>8}{'inner px':>9}{'ms/fit':>8}{'fails':>6} "
+          + "".join(f"{'|yaw| ' + k:>14}" for k in level["ours"]["by_abs_yaw"]))
+    for tool, s in level.items():
+        bins = "".join(f"{v['mean_mm']:>14.3f}" if v["mean_mm"] is not None else f"{'-':>14}"
+                       for v in s.get("by_abs_yaw", {}).values())
+        print(f"{tool:<11}{s['mean_mm']:>8.3f}{s['median_mm']:>8.3f}{s['landmark_rmse_px']:>8.2f}"
+              f"{s['inner_rmse_px']:>9.2f}{s['ms_per_fit_median']:>8.2f}{s['failures']:>6} {bins}")
+
+
+def image_0010(model, eos_fitter, **fit_kw):
+    """Both tools on the real image: landmark RMSE in px (same definition for both)."""
+    from morphable.io.landmarks import read_pts
+
+    pts = read_pts(DATA / "images" / "image_0010.pts")
+    size = (1280, 1024)
+    fit_landmarks(model, pts, size, **fit_kw)
+    t = time.perf_counter()
+    res = fit_landmarks(model, pts, size, **fit_kw)
+    ms = (time.perf_counter() - t) * 1e3
+    cam = res.cameras[0]
+    rmse, inner = landmark_rmse(model, cam.rotation, cam.project, res.vertices(0), pts)
+    out = {"ours": {"landmark_rmse_px": rmse, "inner_rmse_px": inner, "ms": ms,
+                    "fit_reported_rmse_px": float(res.landmark_rmse_px[0]),
+                    "yaw_pitch_roll_deg": res.euler_deg[0].tolist()}}
+    if eos_fitter is not None:
+        t = time.perf_counter()
+        v, proj, rot = eos_fitter.fit(pts, size)
+        ms = (time.perf_counter() - t) * 1e3
+        rmse, inner = landmark_rmse(model, rot, proj, v, pts)
+        out["eos"] = {"landmark_rmse_px": rmse, "inner_rmse_px": inner, "ms": ms}
+    print("\nimage_0010 landmark RMSE px (all / inner 51): " + ", ".join(
+        f"{k} {v['landmark_rmse_px']:.3f} / {v['inner_rmse_px']:.3f} ({v['ms']:.1f} ms)" for k, v in out.items()))
+    return out
+
+
+def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
+    """3D error against time per fit for iteration counts and identity mode counts."""
+    rng = np.random.default_rng(seed + 2)
+    lms = np.stack([s["landmarks"] for s in samples])
+    lms = lms + sigma * rng.standard_normal(lms.shape)
+    curves = {}
+    for k in (10, 20, 40, model.n_identity):
+        pts = []
+        for it in (0, 1, 2, 4, 8):
+            errs, times = [], []
+            for i, s in enumerate(samples):
+                t = time.perf_counter()
+                res = fit_landmarks(model, lms[i], (IMAGE, IMAGE), n_iterations=it, n_identity=k)
+                times.append((time.perf_counter() - t) * 1e3)
+                errs.append(similarity_error(res.vertices(0), s["verts"]))
+            pts.append({"n_iterations": it, "ms": float(np.median(times)), "mean_mm": float(np.mean(errs))})
+        curves[f"n_identity={k}"] = pts
+    result = {"sigma_px": sigma, "n": len(samples), "curves": curves}
+    if eos_fitter is not None:
+        errs, times = [], []
+        for i, s in enumerate(samples):
+            t = time.perf_counter()
+            v, _, _ = eos_fitter.fit(lms[i], (IMAGE, IMAGE))
+            times.append((time.perf_counter() - t) * 1e3)
+            errs.append(similarity_error(v, s["verts"]))
+        result["eos"] = {"ms": float(np.median(times)), "mean_mm": float(np.mean(errs))}
+    with atomic_path(folder / "error_vs_runtime.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
+    _plot(result, folder / "error_vs_runtime.png")
+    return result
+
+
+def _plot(result, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=90)
+    for name, pts in result["curves"].items():
+        ax.plot([p["ms"] for p in pts], [p["mean_mm"] for p in pts], "o-", label=f"ours, {name}")
+    if "eos" in result:
+        ax.plot([result["eos"]["ms"]], [result["eos"]["mean_mm"]], "k*", ms=12, label="eos fit_shape_and_pose")
+    ax.set_xscale("log")
+    ax.set_xlabel("time per fit (ms, median)")
+    ax.set_ylabel("mean 3D vertex error (mm)")
+    ax.set_title(f"SFM landmark fitting, noise {result['sigma_px']:g} px, n={result['n']}"
+                 "\n(points: 0, 1, 2, 4, 8 LM iterations)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--n", type=int, default=300, help="synthetic faces per noise level")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sweep-n", type=int, default=100, help="faces in the error-vs-runtime sweep (0 = skip)")
+    p.add_argument("--no-eos", action="store_true", help="run ours only")
+    p.add_argument("--report", type=Path, default=Path("reports/bench_fitting.json"))
+    a = p.parse_args(argv)
+    a.report.parent.mkdir(parents=True, exist_ok=True)
+    run(a.n, seed=a.seed, sweep_n=a.sweep_n, out=a.report, eos_on=not a.no_eos)
+    print(f"\nwrote {a.report}")
+
+
+if __name__ == "__main__":
+    main()

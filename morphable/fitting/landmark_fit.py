@@ -1,0 +1,465 @@
+"""Fit identity, expressions and cameras to 2D iBUG-68 landmarks of one or more images.
+
+Steps (each usable alone through the functions of this package):
+
+1. linear pose: a scaled orthographic camera from the 2D points and the model's mean
+   landmarks (:func:`~morphable.fitting.pose.estimate_affine_pose`);
+2. jaw sliding: each 2D jaw point takes the closest point of the projected jaw polyline
+   (:func:`~morphable.fitting.correspondences.slide_contours`), re-picked at every iteration;
+3. alternating closed-form solves for identity then expression under the Gaussian prior
+   (:mod:`~morphable.fitting.linear`), repeated with 1 and 2 ``n_linear`` times;
+4. joint Levenberg-Marquardt over rotation (axis-angle increments, no gimbal lock),
+   translation, scale (affine) or depth (perspective), expressions and identity, with
+   analytic Jacobians, an optional Huber loss and a Schur complement that keeps a shared
+   identity cheap for many frames.
+
+Cost (per fit)::
+
+    sum_frames sum_landmarks rho(|uv - y|^2 / s^2) + prior_weight |alpha|^2
+        + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
+
+with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
+``prior_weight = 1``. Only the landmark rows of the model are evaluated, never the full mesh.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import FitError, InputError
+from ..landmarks import as_landmarks
+from .correspondences import Correspondences, landmark_bank, slide_contours
+from .linear import solve_expression, solve_identity
+from .pose import MIN_DEPTH_MM, estimate_affine_pose, project, rotate
+from .result import FitResult
+
+__all__ = ["fit_landmarks"]
+
+AFFINE_DISTANCE_MM = 600.0
+"""Camera distance reported for affine fits (the projection does not depend on it)."""
+
+
+class _Problem:
+    """Fixed data of a fit: landmarks, weights, sizes and settings."""
+
+    def __init__(self, bank, y, mask, principal, focal, perspective, K, E, shared, nonneg,
+                 prior_weight, expression_weight, landmark_std_px, model_std_mm, robust, huber_k):
+        self.bank, self.y, self.mask, self.principal = bank, y, mask, principal
+        self.focal, self.perspective, self.K, self.E = focal, perspective, K, E
+        self.shared, self.nonneg = shared, nonneg
+        self.prior_weight, self.expression_weight = prior_weight, expression_weight
+        self.landmark_std_px, self.model_std_mm = landmark_std_px, model_std_mm
+        self.robust, self.huber_k = robust, huber_k
+        self.N = y.shape[0]
+        self.A = bank.identity[:, :, :K]
+        self.B = bank.expression[:, :, :E]
+
+
+class _State:
+    """Cameras, coefficients, correspondences, and the model rows gathered for them."""
+
+    def __init__(self, R, t, k, alpha, beta, corr, rows=None):
+        self.R, self.t, self.k, self.alpha, self.beta, self.corr = R, t, k, alpha, beta, corr
+        self.rows = rows
+
+    def copy(self):
+        return _State(self.R.copy(), self.t.copy(), self.k.copy(), self.alpha.copy(),
+                      self.beta.copy(), self.corr, self.rows)
+
+
+def _gather(pb: _Problem, st: _State):
+    """Gather mean, identity and expression rows (N, 68, 3[, K|E]) for the correspondences;
+    redone only when the correspondences change."""
+    c = st.corr
+    st.rows = (c.gather_static(pb.bank.mean), c.gather_static(pb.A), c.gather_static(pb.B))
+
+
+def _points(pb: _Problem, st: _State):
+    """(N, 68, 3) model points of the correspondences, mm."""
+    m, A, B = st.rows
+    N = pb.N
+    X = m
+    if pb.K:
+        X = X + (A.reshape(N, 68 * 3, pb.K) @ np.broadcast_to(st.alpha, (N, pb.K))[..., None]).reshape(N, 68, 3)
+    if pb.E:
+        X = X + (B.reshape(N, 68 * 3, pb.E) @ st.beta[..., None]).reshape(N, 68, 3)
+    return X
+
+
+def _project_state(pb: _Problem, st: _State, X, jacobian=True):
+    return project(X, st.R, st.t, st.k, pb.principal, pb.perspective, jacobian)
+
+
+def _weights(pb: _Problem, st: _State, depth=None):
+    """(N, 68) data weights 1/s^2 (0 for unused landmarks)."""
+    scale = st.k
+    if pb.perspective and depth is not None:
+        used = pb.mask & st.corr.defined
+        d = np.where(used, depth, 0.0).sum(1) / np.maximum(used.sum(1), 1)
+        scale = st.k / np.maximum(d, 1e-6)
+    s2 = pb.landmark_std_px ** 2 + (scale * pb.model_std_mm) ** 2
+    return np.where(pb.mask & st.corr.defined, 1.0 / s2[:, None], 0.0)
+
+
+def _slide(pb: _Problem, st: _State):
+    bank = pb.bank
+    if not bank.polylines:
+        return
+    chains = []
+    for _, rows in bank.polylines:
+        X = bank.mean[rows] + np.einsum("rik,gk->gri", pb.A[rows], st.alpha)
+        if pb.E:
+            X = X + np.einsum("rie,ne->nri", pb.B[rows], st.beta)
+        chains.append(_project_state(pb, st, np.broadcast_to(X, (pb.N,) + X.shape[1:]), False)[0])
+    slide_contours(bank, st.corr, chains, pb.y, pb.mask, st.R)
+
+
+def _linear_stage(pb: _Problem, n_linear: int) -> _State:
+    N, K, E = pb.N, pb.K, pb.E
+    G = 1 if pb.shared else N
+    corr = Correspondences.fixed(pb.bank, N)
+    alpha, beta = np.zeros((G, K)), np.zeros((N, E))
+    st = None
+    W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
+    for it in range(max(n_linear, 1)):
+        st = _State(None, None, None, alpha, beta, corr)
+        _gather(pb, st)
+        R, t, s = estimate_affine_pose(_points(pb, st), pb.y, W0, pb.principal)
+        st.R, st.t, st.k = R, t, s
+        _slide(pb, st)
+        _gather(pb, st)
+        W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
+        if n_linear == 0:
+            break
+        W = _weights(pb, st)
+        # exact affine projection: uv = c + s D (R X + t)
+        P = s[:, None, None] * R[:, :2] * np.array([1.0, -1.0])[None, :, None]     # (N, 2, 3)
+        q = pb.principal + s[:, None] * t[:, :2] * np.array([1.0, -1.0])
+        P4 = np.broadcast_to(P[:, None], (N, 68, 2, 3))
+        m, Ag, Bg = st.rows
+        base = pb.y - q[:, None] - np.einsum("nij,nlj->nli", P, m)
+        if K:
+            expr = np.einsum("nij,nlje,ne->nli", P, Bg, beta) if E else 0.0
+            alpha = solve_identity(P4, base - expr, W, Ag, pb.prior_weight, pb.shared)
+        if E:
+            ident = np.einsum("nij,nljk,nk->nli", P, Ag, np.broadcast_to(alpha, (N, K)))
+            beta = solve_expression(P4, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
+        st = _State(R, t, s, alpha, beta, corr, st.rows)
+    if pb.perspective:
+        # same image scale at the face: depth f / s
+        depth = pb.focal / st.k
+        st.t = st.t.copy()
+        st.t[:, 2] = -depth
+        st.k = pb.focal.copy()
+    return st
+
+
+def _residuals(pb: _Problem, st: _State, jacobian: bool):
+    """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals."""
+    X = _points(pb, st)
+    uv, Xc, J, depth = _project_state(pb, st, X, jacobian)
+    return X, uv, Xc, J, depth, uv - pb.y
+
+
+def _data_cost(pb, st, W, r=None, depth=None):
+    if r is None:
+        _, _, _, _, depth, r = _residuals(pb, st, False)
+    c = (W * (r * r).sum(-1)).sum(1)
+    if pb.perspective:
+        bad = ((W > 0) & (depth <= 1e-3)).any(1)
+        c = np.where(bad, np.inf, c)
+    if pb.E:
+        c = c + pb.expression_weight * (st.beta ** 2).sum(1)
+    return c
+
+
+def _group_cost(pb, st, frame_cost):
+    g = frame_cost.sum(0, keepdims=True) if pb.shared else frame_cost
+    if pb.K:
+        g = g + pb.prior_weight * (st.alpha ** 2).sum(1)
+    return g
+
+
+def _robust(pb, W, r):
+    if pb.robust is None:
+        return W
+    e = np.sqrt(W * (r * r).sum(-1))
+    return W * np.where(e > pb.huber_k, pb.huber_k / np.maximum(e, 1e-300), 1.0)
+
+
+def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
+    N, K, E = pb.N, pb.K, pb.E
+    G = 1 if pb.shared else N
+    n_t = 3 if pb.perspective else 2
+    n_rho = 0 if pb.perspective else 1
+    Pf = 3 + n_t + n_rho + E
+    mu = np.full(G, 1e-3)
+    gidx = np.zeros(N, int) if pb.shared else np.arange(N)
+    iters = 0
+    for it in range(n_iter):
+        if it % slide_every == 0 and it:
+            _slide(pb, st)
+            _gather(pb, st)
+        X, uv, Xc, Jp, depth, r = _residuals(pb, st, True)
+        W = _robust(pb, _weights(pb, st, depth), r)
+        cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
+        RX = Xc - st.t[:, None]
+        blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
+        if n_rho:
+            blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
+        JpR = Jp @ st.R[:, None]
+        if E:
+            blocks.append(JpR @ st.rows[2])
+        Jf = np.concatenate(blocks, -1).reshape(N, 136, Pf)
+        Ja = (JpR @ st.rows[1]).reshape(N, 136, K)
+        w2 = np.repeat(W, 2, axis=1)[..., None]
+        rr = r.reshape(N, 136)
+        WJf, WJa = w2 * Jf, w2 * Ja
+        Hff = Jf.transpose(0, 2, 1) @ WJf
+        gf = np.einsum("nrp,nr->np", WJf, rr)
+        if E:
+            Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
+            gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
+        Hfa = Jf.transpose(0, 2, 1) @ WJa
+        if E and pb.nonneg:
+            # blendshape weights held at 0 by the bound leave this step (projected Newton)
+            o = 3 + n_t + n_rho
+            act = np.zeros((N, Pf), bool)
+            act[:, o:] = (st.beta <= 0) & (gf[:, o:] > 0)
+            if act.any():
+                keep = ~act
+                Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
+                gf = np.where(keep, gf, 0.0)
+                Hfa = np.where(keep[:, :, None], Hfa, 0.0)
+        Haa = Ja.transpose(0, 2, 1) @ WJa
+        ga = np.einsum("nrk,nr->nk", WJa, rr)
+        if pb.shared:
+            Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
+        Haa = Haa + pb.prior_weight * np.eye(K)
+        ga = ga + pb.prior_weight * st.alpha
+        accepted = np.zeros(G, bool)
+        for _ in range(4):          # retry rejected groups with more damping
+            m_f = mu[gidx][:, None]
+            Hd = Hff + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hff, axis1=1, axis2=2)[:, None, :] + 1e-9))
+            sol = np.linalg.solve(Hd, np.concatenate([Hfa, gf[..., None]], -1))
+            X1, x2 = sol[..., :K], sol[..., K]
+            if K:
+                Sa = Haa - _gsum(pb, Hfa.transpose(0, 2, 1) @ X1)
+                ba = ga - _gsum(pb, np.einsum("npk,np->nk", Hfa, x2))
+                Sa = Sa + mu[:, None, None] * (np.eye(K) * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
+                da = -np.linalg.solve(Sa, ba[..., None])[..., 0]
+                df = -(x2 + np.einsum("npk,nk->np", X1, da[gidx]))
+            else:
+                da = np.zeros((G, 0))
+                df = -x2
+            new = _apply(pb, st, df, da, n_t, n_rho)
+            cost1 = _group_cost(pb, new, _data_cost(pb, new, W))
+            ok = np.isfinite(cost1) & (cost1 <= cost0) & ~accepted
+            gain = np.where(ok, cost0 - cost1, gain if _ else 0.0)
+            if ok.any():
+                st = _merge(pb, st, new, ok[gidx], ok)
+                accepted |= ok
+                mu = np.where(ok, np.maximum(mu / 3, 1e-9), mu)
+            mu = np.where(~accepted, mu * 8, mu)
+            if accepted.all():
+                break
+        iters += 1
+        if not accepted.any() or np.all(mu > 1e8):
+            break
+        if np.all(gain <= 1e-6 * np.maximum(cost0, 1e-12)):
+            break           # converged
+    return st, iters
+
+
+def _gsum(pb, x):
+    return x.sum(0, keepdims=True) if pb.shared else x
+
+
+def _apply(pb, st, df, da, n_t, n_rho):
+    new = st.copy()
+    new.R = rotate(st.R, df[:, :3])
+    new.t[:, :n_t] += df[:, 3:3 + n_t]
+    if n_rho:
+        new.k = st.k * np.exp(np.clip(df[:, 3 + n_t], -2.0, 2.0))
+    o = 3 + n_t + n_rho
+    if pb.E:
+        new.beta = st.beta + df[:, o:]
+        if pb.nonneg:
+            new.beta = np.maximum(new.beta, 0.0)
+    if pb.K:
+        new.alpha = st.alpha + da
+    return new
+
+
+def _merge(pb, old, new, frames_ok, groups_ok):
+    f = frames_ok
+    out = old.copy()
+    out.R = np.where(f[:, None, None], new.R, old.R)
+    out.t = np.where(f[:, None], new.t, old.t)
+    out.k = np.where(f, new.k, old.k)
+    out.beta = np.where(f[:, None], new.beta, old.beta)
+    out.alpha = np.where(groups_ok[:, None], new.alpha, old.alpha)
+    return out
+
+
+def _as_frames(landmarks, mask, image_size):
+    y, given = as_landmarks(landmarks, "landmarks")
+    if y.ndim == 2:
+        y, given = y[None], given[None]
+    if y.ndim != 3:
+        raise InputError(f"landmarks: expected (68, 2) or (N, 68, 2), got {np.shape(landmarks)}")
+    N = y.shape[0]
+    if N == 0:
+        raise InputError("landmarks: no frames given")
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape not in ((68,), (N, 68)):
+            raise InputError(f"mask: expected (68,) or ({N}, 68) booleans, got {m.shape}")
+        given = given & np.broadcast_to(m, given.shape)
+    size = np.asarray(image_size, dtype=np.float64)
+    if size.shape == (2,):
+        size = np.broadcast_to(size, (N, 2))
+    if size.shape != (N, 2) or not np.all(np.isfinite(size)) or not np.all(size > 0):
+        raise InputError(f"image_size: expected positive (W, H) or one per frame ({N}, 2), got {np.shape(image_size)}")
+    return y, given, size
+
+
+def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=None,
+                  n_iterations: int = 8, n_linear: int = 3, n_identity=None, n_expression=None,
+                  prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
+                  huber_k: float = 1.345, shared_identity: bool = True,
+                  landmark_std_px: float = 1.0, model_std_mm: float = 1.5, focal_px=None,
+                  contour: str = "slide", dtype=np.float64) -> FitResult:
+    """Fit a morphable model to 2D iBUG-68 landmarks of one or more images.
+
+    Parameters
+    ----------
+    model : MorphableModel or str
+        A model with an iBUG-68 mapping (``landmark_ids``); a name is loaded with ``load_model``.
+    landmarks : (68, 2) or (N, 68, 2) array-like, pixels
+        0-based image coordinates (x right, y down); NaN rows are missing points.
+    image_size : (W, H) or (N, 2), pixels
+    camera : {"affine", "perspective"}
+        Scaled orthographic or pinhole camera (fixed focal ``focal_px``, default ``max(W, H)``).
+    mask : (68,) or (N, 68) bool, optional
+        False excludes a landmark (in addition to NaN rows).
+    n_iterations : int
+        Levenberg-Marquardt iterations after the linear stage (0 = linear fit only).
+    n_linear : int
+        Rounds of pose / jaw / identity / expression linear solves.
+    n_identity, n_expression : int or None
+        Fit only the first modes (None = all).
+    prior_weight, expression_weight : float >= 0
+        Weights of ``|alpha|^2`` and ``|beta|^2`` (1 = the Gaussian prior at its Bayesian
+        weight); 0 is allowed and stays finite (a tiny ridge remains).
+    robust : None or "huber"
+        Huber loss on the normalised landmark residuals (threshold ``huber_k``).
+    shared_identity : bool
+        True: one identity for all frames. False: every frame is fitted on its own (batch mode,
+        vectorised); ``identity`` is then the average of the per-frame identities.
+    landmark_std_px, model_std_mm : float
+        Noise of the 2D points (px) and of the model's landmark definition (mm).
+    contour : {"slide", "fixed"}
+        "slide" re-picks the jaw correspondences along the jaw polylines at every iteration.
+    dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    FitError when the landmarks cannot determine a fit (fewer than 4 usable points,
+    collinear or coincident points, a non-finite result). InputError for malformed input.
+
+    Examples
+    --------
+    >>> from morphable import load_model
+    >>> from morphable.camera import Camera
+    >>> model = load_model("sfm")
+    >>> cam = Camera.looking_at_face(image_size=(512, 512), yaw=20)
+    >>> lms = cam.project(model.landmark_positions())      # NaN rows for the jaw contour
+    >>> res = fit_landmarks(model, lms, (512, 512))
+    >>> bool(res.landmark_rmse_px[0] < 1.0), round(float(res.euler_deg[0, 0]))
+    (True, 20)
+    """
+    t0 = time.perf_counter()
+    if isinstance(model, str):
+        from ..io.registry import load_model
+
+        model = load_model(model)
+    if camera not in ("affine", "perspective"):
+        raise InputError(f"camera: expected 'affine' or 'perspective', got {camera!r}")
+    if contour not in ("slide", "fixed"):
+        raise InputError(f"contour: expected 'slide' or 'fixed', got {contour!r}")
+    if robust not in (None, "huber"):
+        raise InputError(f"robust: expected None or 'huber', got {robust!r}")
+    for name, v in (("prior_weight", prior_weight), ("expression_weight", expression_weight),
+                    ("landmark_std_px", landmark_std_px), ("model_std_mm", model_std_mm),
+                    ("huber_k", huber_k)):
+        if not (np.isfinite(v) and v >= 0):
+            raise InputError(f"{name}: must be a finite number >= 0, got {v}")
+    if landmark_std_px == 0 and model_std_mm == 0:
+        raise InputError("landmark_std_px and model_std_mm cannot both be 0")
+    y, given, size = _as_frames(landmarks, mask, image_size)
+    N = y.shape[0]
+    K = model.n_identity if n_identity is None else int(n_identity)
+    E = model.n_expression if n_expression is None else int(n_expression)
+    if not (0 <= K <= model.n_identity) or not (0 <= E <= model.n_expression):
+        raise InputError(f"n_identity/n_expression must be in [0, {model.n_identity}] / "
+                         f"[0, {model.n_expression}], got {K} / {E}")
+    principal = (size - 1) / 2.0
+    perspective = camera == "perspective"
+    if focal_px is None:
+        focal = size.max(1)
+    else:
+        focal = np.broadcast_to(np.asarray(focal_px, dtype=np.float64), (N,)).copy()
+        if not (np.all(np.isfinite(focal)) and np.all(focal > 0)):
+            raise InputError(f"focal_px: must be positive, got {focal_px}")
+    bank = landmark_bank(model, slide=contour == "slide")
+    usable = given & bank.usable[None]
+    if (usable.sum(1) < 4).any():
+        f = int(np.argmax(usable.sum(1) < 4))
+        raise FitError(f"frame {f}: {int(usable[f].sum())} usable landmarks "
+                       f"(given and defined on model {model.name}), need at least 4")
+    pb = _Problem(bank, y, usable, principal, focal, perspective, K, E, shared_identity,
+                  model.expression_kind == "blendshapes", float(prior_weight),
+                  float(expression_weight), float(landmark_std_px), float(model_std_mm),
+                  robust, float(huber_k))
+    with np.errstate(all="ignore"):
+        st = _linear_stage(pb, n_linear)
+        st, iters = _lm_stage(pb, st, n_iterations)
+        _slide(pb, st)
+        _gather(pb, st)
+        _, uv, _, _, depth, r = _residuals(pb, st, False)
+    used = usable & st.corr.defined
+    d2 = (r ** 2).sum(-1)
+    rmse = np.sqrt(np.where(used, d2, 0.0).sum(1) / np.maximum(used.sum(1), 1))
+    finite = all(np.all(np.isfinite(a)) for a in (st.R, st.t, st.k, st.alpha, st.beta, rmse))
+    if not finite:
+        raise FitError("the fit did not converge to finite values (degenerate landmarks?)")
+    if perspective and np.any(used & ~(depth > 0)):
+        raise FitError("the perspective fit put landmarks behind the camera")
+    from ..camera import Camera
+
+    cams = []
+    for i in range(N):
+        W_, H_ = (int(round(v)) for v in size[i])
+        t = st.t[i].copy()
+        if not perspective:
+            t[2] = -AFFINE_DISTANCE_MM
+        cams.append(Camera(kind=camera, rotation=st.R[i], translation=t,
+                           scale=float(st.k[i]) if not perspective else 1.0,
+                           focal=float(st.k[i]) if perspective else 1.0,
+                           image_size=(W_, H_), principal=principal[i]))
+    frame_alpha = np.broadcast_to(st.alpha, (N, K)).copy()
+    fitted = np.where(used[..., None], uv, np.nan)
+    res = FitResult(model=model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
+                    expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,
+                    landmarks=np.where(given[..., None], y, np.nan), fitted_landmarks=fitted,
+                    landmark_vertices=np.where(used, st.corr.vertex_ids(bank), -1),
+                    shared_identity=bool(shared_identity), iterations=iters,
+                    cost=(np.where(used, d2, 0.0)).sum(1), dtype=np.dtype(dtype))
+    res.runtime_ms = (time.perf_counter() - t0) * 1e3
+    return res

@@ -1,0 +1,78 @@
+"""Closed-form identity and expression solves under a fixed camera (Aldrian & Smith style).
+
+With the camera fixed, a projected model point is linear in the coefficients:
+``uv_l ~= q_l + P_l (m_l + A_l alpha + B_l beta)``, with ``P_l`` (2x3) the projection
+(exact for the affine camera, the weak-perspective linearisation at the current depth for
+the pinhole camera). Minimising ``sum_l w_l |uv_l - y_l|^2 + lambda |coeffs|^2`` is then a small
+ridge regression, solved here for many frames at once.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["solve_identity", "solve_expression", "ridge_solve"]
+
+
+def ridge_solve(H, g, prior):
+    """Solve ``(H + prior I) x = g`` for stacks (G, K, K), (G, K); finite even for prior 0."""
+    K = H.shape[-1]
+    if K == 0:
+        return np.zeros(g.shape)
+    tr = np.trace(H, axis1=-2, axis2=-1)[..., None, None]
+    # a relative ridge of 1e-10 keeps an unregularised (prior 0) problem solvable
+    A = H + (prior + 1e-10 * tr / K + 1e-12) * np.eye(K)
+    return np.linalg.solve(A, g[..., None])[..., 0]
+
+
+def _normal(P, W, basis, residual):
+    """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k)."""
+    N, L = W.shape
+    Phi = (P @ basis).reshape(N, 2 * L, -1)                      # (N, 2L, k)
+    WPhiT = (np.repeat(W, 2, axis=1)[..., None] * Phi).transpose(0, 2, 1)
+    return WPhiT @ Phi, (WPhiT @ residual.reshape(N, 2 * L, 1))[..., 0]
+
+
+def solve_identity(P, target, W, A, prior, shared: bool):
+    """Identity coefficients from ``P A alpha ~= target``.
+
+    Parameters
+    ----------
+    P : (N, L, 2, 3) projection of each point; target : (N, L, 2) px, the image point minus
+    everything but the identity term; W : (N, L) weights (1/px^2); A : (N, L, 3, K) identity rows
+    prior : float, weight of ``|alpha|^2``; shared : one identity for all frames
+
+    Returns
+    -------
+    (1, K) if shared else (N, K) coefficients in std units.
+    """
+    H, g = _normal(P, W, A, target)
+    if shared:
+        H, g = H.sum(0, keepdims=True), g.sum(0, keepdims=True)
+    return ridge_solve(H, g, prior)
+
+
+def solve_expression(P, target, W, B, prior, nonnegative: bool):
+    """Per-frame expression coefficients from ``P B beta ~= target`` (ridge).
+
+    ``nonnegative`` (blendshapes) clamps negative weights to 0 and re-solves the others
+    (an active-set NNLS, exact for the few modes of a blendshape model after <= E passes).
+
+    Returns (N, E).
+    """
+    H, g = _normal(P, W, B, target)
+    E = H.shape[-1]
+    beta = ridge_solve(H, g, prior)
+    if not nonnegative or E == 0:
+        return beta
+    free = np.ones(beta.shape, bool)
+    for _ in range(E):
+        neg = free & (beta < 0)
+        if not neg.any():
+            break
+        free &= ~neg
+        # drop clamped modes: identity rows/cols and zero right-hand side
+        F = free[:, :, None] & free[:, None, :]
+        Hf = np.where(F, H, 0.0) + np.where(~free, 1.0, 0.0)[:, :, None] * np.eye(E)
+        beta = ridge_solve(Hf, np.where(free, g, 0.0), prior)
+        beta = np.where(free, beta, 0.0)
+    return np.maximum(beta, 0.0)

@@ -1,0 +1,131 @@
+"""Camera pose for landmark fitting: the linear affine estimate and the projection with its
+Jacobian, vectorised over frames.
+
+Conventions are those of :mod:`morphable.camera`: ``X_cam = R X + t``; affine
+``u = c + k * D X_cam``, perspective ``u = c + k / d * D X_cam`` with ``D = [[1, 0, 0],
+[0, -1, 0]]`` (image y down), ``d = -Z_cam`` the depth, ``k`` the scale (px/mm) or the focal
+length (px).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import FitError
+
+__all__ = ["estimate_affine_pose", "project", "rotate"]
+
+MIN_DEPTH_MM = 1e-3
+
+
+def estimate_affine_pose(points3d, points2d, weights, principal):
+    """Scaled orthographic pose from 2D-3D correspondences (linear, eos / Hartley-Zisserman).
+
+    A 2x4 affine camera is fitted by weighted least squares on normalised coordinates, then
+    its 2x3 part is replaced by the nearest scaled rotation.
+
+    Parameters
+    ----------
+    points3d : (N, L, 3) mm, model points
+    points2d : (N, L, 2) pixels
+    weights : (N, L) >= 0 (0 = unused)
+    principal : (N, 2) pixels
+
+    Returns
+    -------
+    R : (N, 3, 3) rotations, t : (N, 3) mm (t_z = 0), scale : (N,) px/mm
+
+    Raises
+    ------
+    FitError when a frame has fewer than 4 usable points or they are degenerate.
+    """
+    X = np.asarray(points3d, np.float64)
+    y = np.asarray(points2d, np.float64)
+    w = np.asarray(weights, np.float64)
+    n_used = (w > 0).sum(1)
+    if (n_used < 4).any():
+        f = int(np.argmax(n_used < 4))
+        raise FitError(f"frame {f}: {int(n_used[f])} usable landmarks, need at least 4 for a pose")
+    wsum = w.sum(1, keepdims=True)
+    # normalise both point sets (centroid 0, unit RMS radius) for conditioning
+    mx = (w[..., None] * X).sum(1, keepdims=True) / wsum[..., None]
+    my = (w[..., None] * y).sum(1, keepdims=True) / wsum[..., None]
+    Xc, yc = X - mx, y - my
+    sx = np.sqrt((w * (Xc ** 2).sum(-1)).sum(1) / wsum[:, 0])
+    sy = np.sqrt((w * (yc ** 2).sum(-1)).sum(1) / wsum[:, 0])
+    _check_spread(yc, w, sy, "image")
+    _check_spread(Xc, w, sx, "model")
+    Xn = Xc / sx[:, None, None]
+    yn = yc / sy[:, None, None]
+    # centred data: the translation of the affine camera is zero, solve y = M X for M (2x3)
+    G = np.einsum("nl,nli,nlj->nij", w, Xn, Xn)
+    rhs = np.einsum("nl,nli,nlj->nij", w, Xn, yn)
+    # coplanar model points (few landmarks) leave depth free: a tiny ridge keeps it defined
+    G = G + 1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    M = np.linalg.solve(G, rhs).transpose(0, 2, 1) * (sy / sx)[:, None, None]     # (N, 2, 3)
+    M[:, 1] *= -1                    # image y down -> camera y up
+    U, S, Vt = np.linalg.svd(M, full_matrices=False)
+    r12 = U @ Vt
+    R = np.concatenate([r12, np.cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
+    scale = S.mean(-1)
+    if not np.all(np.isfinite(R)) or not np.all(scale > 0):
+        raise FitError("the affine pose estimate is degenerate (landmarks collinear?)")
+    # translation that maps the weighted centroids onto each other
+    c = my[:, 0] - principal
+    t = np.zeros((len(X), 3))
+    t[:, 0] = c[:, 0] / scale - (R[:, 0] * mx[:, 0]).sum(-1)
+    t[:, 1] = -c[:, 1] / scale - (R[:, 1] * mx[:, 0]).sum(-1)
+    return R, t, scale
+
+
+def _check_spread(centred, w, rms, what):
+    # the smallest principal spread must not vanish relative to the largest
+    cov = np.einsum("nl,nli,nlj->nij", w, centred, centred)
+    ev = np.linalg.eigvalsh(cov)
+    bad = ~(ev[:, -2] > 1e-8 * ev[:, -1]) | ~(rms > 0) | ~np.isfinite(rms)
+    if bad.any():
+        f = int(np.argmax(bad))
+        raise FitError(f"frame {f}: the {what} landmark points are coincident or collinear")
+
+
+def rotate(R, dw):
+    """Left-multiply rotations (N, 3, 3) by ``exp([dw])``, dw (N, 3) radians (no gimbal lock)."""
+    from ..camera import axis_angle_to_matrix
+
+    return axis_angle_to_matrix(dw) @ R
+
+
+def project(X, R, t, k, principal, perspective: bool, jacobian: bool = True):
+    """Project world points and (optionally) differentiate w.r.t. the camera-frame point.
+
+    Parameters
+    ----------
+    X : (N, L, 3) mm; R : (N, 3, 3); t : (N, 3) mm; k : (N,) px/mm or focal px
+    principal : (N, 2) px
+
+    Returns
+    -------
+    uv : (N, L, 2) px, Xc : (N, L, 3) mm camera frame, J : (N, L, 2, 3) d uv / d Xc or None,
+    depth : (N, L) mm (``-Z_cam``; inf for affine)
+    """
+    Xc = X @ R.transpose(0, 2, 1) + t[:, None]
+    N, L = Xc.shape[:2]
+    kk = k[:, None]
+    if perspective:
+        depth = -Xc[..., 2]
+        safe = np.where(depth > MIN_DEPTH_MM, depth, MIN_DEPTH_MM)
+        g = kk / safe
+    else:
+        depth = np.full((N, L), np.inf)
+        g = np.broadcast_to(kk, (N, L))
+    uv = np.empty((N, L, 2))
+    uv[..., 0] = principal[:, None, 0] + g * Xc[..., 0]
+    uv[..., 1] = principal[:, None, 1] - g * Xc[..., 1]
+    J = None
+    if jacobian:
+        J = np.zeros((N, L, 2, 3))
+        J[..., 0, 0] = g
+        J[..., 1, 1] = -g
+        if perspective:
+            J[..., 0, 2] = g * Xc[..., 0] / safe
+            J[..., 1, 2] = -g * Xc[..., 1] / safe
+    return uv, Xc, J, depth
