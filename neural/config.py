@@ -50,7 +50,7 @@ class GARConfig:
     mapping_lr_mul: float = 0.01
     channel_base: int = 2048
     channel_max: int = 128
-    aux_width: int = 16
+    aux_width: int = 8
     # optimisation
     batch_size: int = 8
     g_lr: float = 2e-3

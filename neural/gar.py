@@ -247,8 +247,8 @@ class Generator(nn.Module):
 
     def make_noise(self, batch: int, generator: torch.Generator | None = None) -> list:
         """Per-layer noise maps eps: a list of (batch, 1, r, r) tensors, two per block."""
-        dev = self.input.device
-        return [torch.randn(batch, 1, r, r, generator=generator, device=dev)
+        # drawn on the CPU so that a CPU generator gives the same maps on any device
+        return [torch.randn(batch, 1, r, r, generator=generator).to(self.input.device)
                 for r in self.config.resolutions for _ in range(RenderBlock.n_noises)]
 
     def synthesis(self, normals: torch.Tensor, w: torch.Tensor, noise=None) -> torch.Tensor:

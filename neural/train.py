@@ -91,15 +91,15 @@ class Trainer:
     """
 
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
-                 aligned=False, workers: int = 0):
+                 aligned=False, workers: int = 0, device="cpu"):
         from .data import AlignedImageFolder, SyntheticFaces
 
-        self.config, self.out = config, Path(out)
+        self.config, self.out, self.device = config, Path(out), torch.device(device)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "samples").mkdir(exist_ok=True)
         torch.manual_seed(config.seed)
-        self.G = Generator(config)
-        self.D = Discriminator(config)
+        self.G = Generator(config).to(self.device)
+        self.D = Discriminator(config).to(self.device)
         self.G_ema = copy.deepcopy(self.G).eval().requires_grad_(False)
         self.opt_g = torch.optim.Adam(self.G.parameters(), lr=config.g_lr, betas=config.betas)
         # lazy R1: scale the D optimiser's momentum as StyleGAN2 does
@@ -109,7 +109,7 @@ class Trainer:
         if aux is None:
             aux = {n: load_aux(n, None if aux_dir is None else Path(aux_dir) / f"aux_{n}.pt",
                                resolution=config.resolution) for n in NAMES}
-        self.aux = aux
+        self.aux = {n: net.to(self.device) for n, net in aux.items()}
         self.data = SyntheticFaces.from_config(config)
         self.images = None
         if images is not None:
@@ -117,7 +117,8 @@ class Trainer:
                                              model=config.model)
         self.workers = workers
         self.step = 0
-        self.landmark_index = torch.as_tensor(np.flatnonzero(self.data.model.landmark_ids >= 0))
+        self.landmark_index = torch.as_tensor(np.flatnonzero(self.data.model.landmark_ids >= 0),
+                                              device=self.device)
 
     # --- checkpoints --------------------------------------------------------------------
     @property
@@ -143,7 +144,7 @@ class Trainer:
         """Restore from a checkpoint (default ``out/checkpoint.pt``); returns the step."""
         path = Path(path or self.checkpoint_path)
         try:
-            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+            ckpt = torch.load(path, map_location=self.device, weights_only=True)
         except (OSError, RuntimeError, EOFError) as e:
             raise InputError(f"{path}: cannot read checkpoint ({str(e).splitlines()[0]})") from None
         saved = GARConfig.from_dict(ckpt["config"])
@@ -161,15 +162,16 @@ class Trainer:
         if self.images is None:
             return batch["image"]
         idx = torch.randint(len(self.images), (batch["image"].shape[0],), generator=gen)
-        return torch.stack([self.images[int(i)] for i in idx])
+        return torch.stack([self.images[int(i)] for i in idx]).to(self.device)
 
     def train_step(self, batch) -> dict:
-        cfg = self.config
+        cfg, dev = self.config, self.device
+        batch = {k: v.to(dev) for k, v in batch.items()}
         gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + self.step)
         torch.manual_seed(cfg.seed * 1_000_003 + self.step)   # the per-layer noise
         B = batch["normals"].shape[0]
-        z1 = torch.randn(B, cfg.z_dim, generator=gen)
-        z2 = torch.randn(B, cfg.z_dim, generator=gen)
+        z1 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
+        z2 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
 
         # generator
         self.G.train()
@@ -215,11 +217,11 @@ class Trainer:
         """Rows: a fixed normal map, then G_ema under ``n_latents`` fixed latents."""
         fixed = self.data.sample(n_normals, rng=[self.config.seed, 10**9])
         gen = torch.Generator().manual_seed(12345)
-        z = torch.randn(n_latents, self.config.z_dim, generator=gen)
-        noise = self.G_ema.make_noise(n_latents, gen)
+        z = torch.randn(n_latents, self.config.z_dim, generator=gen).to(self.device)
+        noise = [e.to(self.device) for e in self.G_ema.make_noise(n_latents, gen)]
         rows = []
         with torch.no_grad():
-            for n in fixed["normals"]:
+            for n in fixed["normals"].to(self.device):
                 imgs = self.G_ema(n[None].expand(n_latents, -1, -1, -1), z, noise=noise)
                 rows += [normal_to_rgb(n[None]), imgs]
         save_grid(torch.cat(rows), path, ncol=n_latents + 1)
@@ -293,6 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-resume", action="store_true", help="fail if --out has a checkpoint")
     p.add_argument("--workers", type=int, default=0, help="data-loading processes")
     p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -317,7 +320,7 @@ def main(argv=None) -> int:
             torch.manual_seed(cfg.seed + 1)
             aux = {n: load_aux(n, pretrained=False, width=cfg.aux_width) for n in NAMES}
         trainer = Trainer(cfg, args.out, aux=aux, aux_dir=args.aux_dir, images=args.images,
-                          aligned=args.aligned, workers=args.workers)
+                          aligned=args.aligned, workers=args.workers, device=args.device)
         if trainer.checkpoint_path.exists():
             if args.no_resume:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
