@@ -204,3 +204,38 @@ def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
     assert paths[0].stat().st_size > 10_000 and "| eos | 3 frames |" in paths[2].read_text()
     with pytest.raises(InputError, match="video-frames"):
         report.run(james, sfm, ["eos"], ["outdoor"], video_frames=2)
+
+
+def test_detected_landmarks_on_rendered_frames(james, sfm):
+    pytest.importorskip("dlib")
+    pytest.importorskip("morphable.raster")
+    from evaluation.florence import video_landmarks
+    from evaluation.videos import synthetic_video
+
+    lm, size, desc = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=True)
+    assert desc["landmarks"].startswith("dlib") and size == (256, 256)
+    truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
+    d = np.linalg.norm(lm[:, 17:] - truth[:, 17:], axis=-1)
+    assert np.isfinite(lm).all() and np.nanmedian(d) < 10.0
+
+
+def test_real_frames_folder(james, sfm, tmp_path):
+    from PIL import Image
+
+    from evaluation.florence import run_protocol
+    from evaluation.videos import synthetic_video
+    from morphable.io.landmarks import write_pts
+
+    video = synthetic_video(james, "indoor", sfm.landmark_positions(), n_frames=6, n_sampled=6, seed=1)
+    folder = tmp_path / "james" / "indoor"
+    folder.mkdir(parents=True)
+    # .pts files hold every point: use the frames where all 68 are visible
+    for i in np.flatnonzero(np.isfinite(video.landmarks).all((1, 2))):
+        Image.new("RGB", video.image_size).save(folder / f"frame_{i:03d}.png")
+        write_pts(folder / f"frame_{i:03d}.pts", video.landmarks[i])
+    report, _ = run_protocol(james, sfm, ["eos"], ["indoor"], n_sampled=2,
+                             frames_dir=tmp_path / "james")
+    assert report["videos"]["indoor"]["source"].endswith("indoor")
+    assert 0.2 < report["methods"]["eos"]["indoor"]["mean_mm"] < 5.0
+    with pytest.raises(InputError, match="no frames"):
+        run_protocol(james, sfm, ["mean-face"], ["outdoor"], n_sampled=2, frames_dir=tmp_path / "james")
