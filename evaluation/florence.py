@@ -52,6 +52,9 @@ class Reconstruction:
     seconds : float, fitting time for the whole video (model loading excluded)
     n_frames : int
     info : dict, method-specific figures (landmark residuals...)
+    vertex_ids : (V,) int, the model vertex of each row of ``vertices`` (models with eyes,
+        teeth and a mouth interior are reduced to their skin surface)
+    n_model_vertices : int, vertices of the full model (size of the per-vertex error maps)
     """
 
     vertices: np.ndarray
@@ -60,13 +63,33 @@ class Reconstruction:
     seconds: float
     n_frames: int
     info: dict = field(default_factory=dict)
+    vertex_ids: np.ndarray | None = None
+    n_model_vertices: int = 0
 
 
-def _landmarks_of(model, vertices) -> np.ndarray:
-    out = np.full((68, 3), np.nan)
+# the skin of models that also hold eyeballs, teeth, a mouth interior (ICT)
+SKIN_SEGMENTS = ("face", "head_neck")
+
+
+def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruction:
+    """Package a model-frame mesh: landmarks from the model's ids, skin only when the model
+    says which vertices are skin (the scan has no eyeballs or teeth to compare with)."""
+    lm = np.full((68, 3), np.nan)
     ok = model.landmark_ids >= 0
-    out[ok] = vertices[model.landmark_ids[ok]]
-    return out
+    lm[ok] = vertices[model.landmark_ids[ok]]
+    tri = model.triangles
+    ids = np.arange(model.n_vertices)
+    skin = [model.segments[k] for k in SKIN_SEGMENTS if k in model.segments]
+    if skin:
+        keep = np.zeros(model.n_vertices, dtype=bool)
+        keep[np.concatenate(skin)] = True
+        tri = tri[keep[tri].all(1)]
+        ids = np.unique(tri)
+        remap = np.full(model.n_vertices, -1, dtype=np.int64)
+        remap[ids] = np.arange(len(ids))
+        tri = remap[tri]
+    return Reconstruction(vertices[ids], tri, lm, seconds, n_frames, dict(info or {}), ids,
+                          model.n_vertices)
 
 
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
@@ -91,8 +114,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     peers = peers if peers is not None else {}
     lm = np.asarray(landmarks, dtype=np.float64)
     if method == "mean-face":
-        return Reconstruction(model.mean.astype(np.float64), model.triangles,
-                              _landmarks_of(model, model.mean), 0.0, len(lm))
+        return _reconstruction(model, model.mean.astype(np.float64), 0.0, len(lm))
     if method in ("ours", "ours-independent"):
         try:
             from morphable.fitting import fit_landmarks
@@ -103,8 +125,8 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
                             shared_identity=method == "ours", **effort)
         v = res.vertices().mean(0)
         dt = time.perf_counter() - t
-        return Reconstruction(v, model.triangles, _landmarks_of(model, v), dt, len(lm),
-                              {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px))})
+        return _reconstruction(model, v, dt, len(lm),
+                               {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px))})
     if method == "eos":
         from morphable import load_model
 
@@ -117,7 +139,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         t = time.perf_counter()
         v = peers[key].fit(lm, image_size).mean(0)
         dt = time.perf_counter() - t
-        return Reconstruction(v, sfm.triangles, _landmarks_of(sfm, v), dt, len(lm))
+        return _reconstruction(sfm, v, dt, len(lm))
     if method == "gar":
         raise InputError("method gar: the neural plugin's reconstruction is not wired into the "
                          "protocol yet")
@@ -204,8 +226,9 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     Returns
     -------
     report : dict shaped ``{"methods": {m: {c: cell}}, "metric", "alignment", "videos", ...}``
-    errors : dict ``"method/condition"`` -> (V,) per-vertex point-to-plane errors (NaN outside
-        the crop), plus ``".../vertices"`` and ``".../triangles"`` of the aligned meshes
+    errors : dict ``"method/condition"`` -> (V,) point-to-plane error per model vertex (NaN
+        outside the crop or the skin), plus ``".../vertex_ids"``, ``".../vertices"`` and
+        ``".../triangles"`` of the evaluated, aligned meshes
     """
     efforts = efforts or {}
     for m in methods:
@@ -229,7 +252,11 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                 cell, cmp = {"error": str(e)}, None
             report["methods"][m][c] = cell
             if cmp is not None:
-                errors[f"{m}/{c}"] = cmp.per_vertex("point_to_plane")
+                # per model vertex (NaN outside the crop), with the evaluated mesh for plotting
+                per = np.full(rec.n_model_vertices, np.nan)
+                per[rec.vertex_ids] = cmp.per_vertex("point_to_plane")
+                errors[f"{m}/{c}"] = per
+                errors[f"{m}/{c}/vertex_ids"] = rec.vertex_ids
                 errors[f"{m}/{c}/vertices"] = cmp.aligned_vertices
                 errors[f"{m}/{c}/triangles"] = rec.triangles
                 alignment = alignment or {k: v for k, v in cmp.alignment.items() if k != "transform"}
@@ -342,6 +369,9 @@ def main(argv=None) -> int:
             detect=args.detect, frames_dir=args.frames_dir, efforts=efforts, radius=args.radius,
             icp=not args.no_icp, icp_scale=args.icp_scale, landmark_scale=not args.rigid,
             log=lambda s: print(s, file=sys.stderr))
+        cells = [cell for per in report["methods"].values() for cell in per.values()]
+        if cells and all("error" in cell for cell in cells):
+            raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")
         report["command"] = "python -m evaluation.florence " + " ".join(
             sys.argv[1:] if argv is None else argv)
         print(format_table(report))

@@ -173,6 +173,10 @@ def load_scan(path, landmarks, units: str = "auto") -> Scan:
     if units not in UNITS:
         raise InputError(f"{path}: unknown units {units!r} (mm, cm, m or auto)")
     k = UNITS[units]
+    iod = interocular(lm) * k
+    if np.isfinite(iod) and not 35.0 <= iod <= 110.0:
+        raise InputError(f"{where}: in {units} the inter-ocular distance is {iod:.4g} mm, not a "
+                         f"face's (about 63 mm); check --scan-units (or use auto)")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     triangles = np.asarray(mesh.faces, dtype=np.int64)
     uv = triangle_uv = texture = None

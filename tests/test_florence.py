@@ -184,6 +184,9 @@ def test_command_bad_input_one_line_no_output(james_paths, tmp_path):
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--methods", "magic",
                 "--report", report)
     assert r.returncode == 2 and "magic" in r.stderr and not report.exists()
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--scan-units", "m",
+                "--methods", "mean-face", "--report", report)
+    assert r.returncode == 2 and "scan-units" in r.stderr and not report.exists()
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--report",
                 tmp_path / "nowhere" / "r.json")
     assert r.returncode == 2 and "nowhere" in r.stderr
