@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import FitError, InputError
 from ..landmarks import as_landmarks
 from .correspondences import Correspondences, landmark_bank, slide_contours
-from .linear import solve_expression, solve_identity
+from .linear import project_rows, solve_expression, solve_identity
 from .pose import MIN_DEPTH_MM, estimate_affine_pose, project, rotate
 from .result import FitResult
 
@@ -52,8 +52,9 @@ class _Problem:
         self.landmark_std_px, self.model_std_mm = landmark_std_px, model_std_mm
         self.robust, self.huber_k = robust, huber_k
         self.N = y.shape[0]
-        self.A = bank.identity[:, :, :K]
-        self.B = bank.expression[:, :, :E]
+        self.A = np.ascontiguousarray(bank.identity[:, :, :K])
+        self.B = np.ascontiguousarray(bank.expression[:, :, :E])
+        self.sliding = np.array(sorted(int(j) for lms, _ in bank.polylines for j in lms), dtype=np.int64)
 
 
 class _State:
@@ -68,11 +69,22 @@ class _State:
                       self.beta.copy(), self.corr, self.rows)
 
 
-def _gather(pb: _Problem, st: _State):
+def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     """Gather mean, identity and expression rows (N, 68, 3[, K|E]) for the correspondences;
-    redone only when the correspondences change."""
+    redone when they change, for the sliding jaw landmarks only once the rest is in place."""
     c = st.corr
+    if sliding_only and st.rows is not None:
+        if pb.sliding.size:
+            for src, dst in zip((pb.bank.mean, pb.A, pb.B), st.rows):
+                c.gather_static(src, pb.sliding, dst)
+        return
     st.rows = (c.gather_static(pb.bank.mean), c.gather_static(pb.A), c.gather_static(pb.B))
+
+
+def _combine(rows, coeffs):
+    """rows (N, L, 3, k) times coefficients (N, k) -> (N, L, 3)."""
+    N, L, _, k = rows.shape
+    return (rows.reshape(N, L * 3, k) @ coeffs[..., None]).reshape(N, L, 3)
 
 
 def _points(pb: _Problem, st: _State):
@@ -122,13 +134,14 @@ def _linear_stage(pb: _Problem, n_linear: int) -> _State:
     alpha, beta = np.zeros((G, K)), np.zeros((N, E))
     st = None
     W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
+    st = _State(None, None, None, alpha, beta, corr)
+    _gather(pb, st)
     for it in range(max(n_linear, 1)):
-        st = _State(None, None, None, alpha, beta, corr)
-        _gather(pb, st)
+        st.alpha, st.beta = alpha, beta
         R, t, s = estimate_affine_pose(_points(pb, st), pb.y, W0, pb.principal)
         st.R, st.t, st.k = R, t, s
         _slide(pb, st)
-        _gather(pb, st)
+        _gather(pb, st, sliding_only=True)
         W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
         if n_linear == 0:
             break
@@ -136,15 +149,14 @@ def _linear_stage(pb: _Problem, n_linear: int) -> _State:
         # exact affine projection: uv = c + s D (R X + t)
         P = s[:, None, None] * R[:, :2] * np.array([1.0, -1.0])[None, :, None]     # (N, 2, 3)
         q = pb.principal + s[:, None] * t[:, :2] * np.array([1.0, -1.0])
-        P4 = np.broadcast_to(P[:, None], (N, 68, 2, 3))
         m, Ag, Bg = st.rows
-        base = pb.y - q[:, None] - np.einsum("nij,nlj->nli", P, m)
+        base = pb.y - q[:, None] - m @ P.transpose(0, 2, 1)
         if K:
-            expr = np.einsum("nij,nlje,ne->nli", P, Bg, beta) if E else 0.0
-            alpha = solve_identity(P4, base - expr, W, Ag, pb.prior_weight, pb.shared)
+            expr = _combine(Bg, beta) @ P.transpose(0, 2, 1) if E else 0.0
+            alpha = solve_identity(P, base - expr, W, Ag, pb.prior_weight, pb.shared)
         if E:
-            ident = np.einsum("nij,nljk,nk->nli", P, Ag, np.broadcast_to(alpha, (N, K)))
-            beta = solve_expression(P4, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
+            ident = _combine(Ag, np.broadcast_to(alpha, (N, K))) @ P.transpose(0, 2, 1)
+            beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
         st = _State(R, t, s, alpha, beta, corr, st.rows)
     if pb.perspective:
         # same image scale at the face: depth f / s
@@ -200,7 +212,7 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
     for it in range(n_iter):
         if it % slide_every == 0 and it:
             _slide(pb, st)
-            _gather(pb, st)
+            _gather(pb, st, sliding_only=True)
         X, uv, Xc, Jp, depth, r = _residuals(pb, st, True)
         W = _robust(pb, _weights(pb, st, depth), r)
         cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
@@ -208,16 +220,17 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
         if n_rho:
             blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
-        JpR = Jp @ st.R[:, None]
+        # the affine Jacobian is the same for every point: one GEMM per frame
+        JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
         if E:
-            blocks.append(JpR @ st.rows[2])
+            blocks.append(project_rows(JpR, st.rows[2]))
         Jf = np.concatenate(blocks, -1).reshape(N, 136, Pf)
-        Ja = (JpR @ st.rows[1]).reshape(N, 136, K)
+        Ja = np.ascontiguousarray(project_rows(JpR, st.rows[1])).reshape(N, 136, K)
         w2 = np.repeat(W, 2, axis=1)[..., None]
         rr = r.reshape(N, 136)
         WJf, WJa = w2 * Jf, w2 * Ja
         Hff = Jf.transpose(0, 2, 1) @ WJf
-        gf = np.einsum("nrp,nr->np", WJf, rr)
+        gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
         if E:
             Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
             gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
@@ -233,26 +246,31 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
                 gf = np.where(keep, gf, 0.0)
                 Hfa = np.where(keep[:, :, None], Hfa, 0.0)
         Haa = Ja.transpose(0, 2, 1) @ WJa
-        ga = np.einsum("nrk,nr->nk", WJa, rr)
+        ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
         if pb.shared:
             Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
         Haa = Haa + pb.prior_weight * np.eye(K)
         ga = ga + pb.prior_weight * st.alpha
         accepted = np.zeros(G, bool)
         for _ in range(4):          # retry rejected groups with more damping
-            m_f = mu[gidx][:, None]
-            Hd = Hff + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hff, axis1=1, axis2=2)[:, None, :] + 1e-9))
-            sol = np.linalg.solve(Hd, np.concatenate([Hfa, gf[..., None]], -1))
+            # independent frames: re-solve only the ones still rejected
+            sel = np.arange(N) if pb.shared else np.flatnonzero(~accepted)
+            gs = np.arange(G) if pb.shared else sel
+            Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
+            m_f = mu[gidx[sel]][:, None]
+            Hd = Hs + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
+            sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
             X1, x2 = sol[..., :K], sol[..., K]
+            df = np.zeros((N, Pf))
+            da = np.zeros((G, K))
             if K:
-                Sa = Haa - _gsum(pb, Hfa.transpose(0, 2, 1) @ X1)
-                ba = ga - _gsum(pb, np.einsum("npk,np->nk", Hfa, x2))
-                Sa = Sa + mu[:, None, None] * (np.eye(K) * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
-                da = -np.linalg.solve(Sa, ba[..., None])[..., 0]
-                df = -(x2 + np.einsum("npk,nk->np", X1, da[gidx]))
+                Sa = Haa[gs] - _gsum(pb, Hfs.transpose(0, 2, 1) @ X1)
+                ba = ga[gs] - _gsum(pb, (x2[:, None, :] @ Hfs)[:, 0])
+                Sa = Sa + mu[gs, None, None] * (np.eye(K) * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
+                da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
+                df[sel] = -(x2 + (X1 @ da[gidx[sel]][..., None])[..., 0])
             else:
-                da = np.zeros((G, 0))
-                df = -x2
+                df[sel] = -x2
             new = _apply(pb, st, df, da, n_t, n_rho)
             cost1 = _group_cost(pb, new, _data_cost(pb, new, W))
             ok = np.isfinite(cost1) & (cost1 <= cost0) & ~accepted
@@ -326,7 +344,7 @@ def _as_frames(landmarks, mask, image_size):
 
 
 def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=None,
-                  n_iterations: int = 8, n_linear: int = 3, n_identity=None, n_expression=None,
+                  n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
                   huber_k: float = 1.345, shared_identity: bool = True,
                   landmark_std_px: float = 1.0, model_std_mm: float = 1.5, focal_px=None,
@@ -431,7 +449,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         st = _linear_stage(pb, n_linear)
         st, iters = _lm_stage(pb, st, n_iterations)
         _slide(pb, st)
-        _gather(pb, st)
+        _gather(pb, st, sliding_only=True)
         _, uv, _, _, depth, r = _residuals(pb, st, False)
     used = usable & st.corr.defined
     d2 = (r ** 2).sum(-1)
