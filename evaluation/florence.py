@@ -33,7 +33,7 @@ from .scans import UNITS, Scan, load_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
-           "format_table", "main"]
+           "format_table", "save_heatmap", "main"]
 
 METHODS = ("ours", "ours-independent", "eos", "mean-face", "gar")
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
@@ -164,6 +164,34 @@ def evaluate(rec: Reconstruction, scan: Scan, radius: float = CROP_RADIUS_MM, ic
             "icp_fitness": (cmp.alignment["icp"] or {}).get("fitness"),
             **rec.info}
     return cell, cmp
+
+
+def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, size: int = 384):
+    """Render a frontal heat map of per-vertex errors to a PNG (atomically).
+
+    Parameters
+    ----------
+    vertices : (V, 3) mm, the aligned reconstruction (scan frame); triangles : (F, 3)
+    errors : (V,) mm, NaN where not evaluated (drawn grey)
+    frame : Similarity, scan frame -> frontal head frame (:func:`evaluation.videos.frontal_frame`)
+    max_mm : error at the top of the colour scale
+    """
+    import matplotlib
+
+    from morphable.io.atomic import atomic_path
+    from morphable.raster import frame_mesh, render, save_image_png
+
+    e = np.asarray(errors, dtype=np.float64)
+    colors = np.asarray(matplotlib.colormaps["viridis"](np.clip(np.nan_to_num(e) / max_mm, 0, 1)))[:, :3]
+    colors[~np.isfinite(e)] = 0.6
+    front = frame.apply(vertices)
+    cam = frame_mesh(front, (size, size))
+    # the camera sees the frontal frame: give it the scan -> frontal rotation as well
+    cam.translation = cam.rotation @ frame.translation + cam.translation
+    cam.rotation = cam.rotation @ frame.rotation
+    img = render(vertices, triangles, cam, colors=colors, background=(1.0, 1.0, 1.0), ambient=0.5)
+    with atomic_path(path) as tmp:
+        save_image_png(tmp, img)
 
 
 def _frames_from_folder(folder: Path, condition: str, k: int):
@@ -332,6 +360,7 @@ def _parser():
     p.add_argument("--rigid", action="store_true", help="rigid landmark alignment (no scale)")
     p.add_argument("--report", required=True, help="JSON report to write")
     p.add_argument("--errors", help="per-vertex errors .npz (default: beside the report)")
+    p.add_argument("--heatmaps", help="folder for frontal error heat maps (method_condition.png)")
     return p
 
 
@@ -374,8 +403,19 @@ def main(argv=None) -> int:
             raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")
         report["command"] = "python -m evaluation.florence " + " ".join(
             sys.argv[1:] if argv is None else argv)
+        if args.heatmaps and not Path(args.heatmaps).is_dir():
+            raise InputError(f"{args.heatmaps}: heat-map folder does not exist")
         print(format_table(report))
         _write_outputs(report, errors, report_path, errors_path)
+        if args.heatmaps:
+            from .videos import frontal_frame
+
+            frame = frontal_frame(scan.landmarks, model.landmark_positions())
+            for key in [k for k in errors if k.count("/") == 1]:
+                ids = errors[key + "/vertex_ids"]
+                save_heatmap(Path(args.heatmaps) / (key.replace("/", "_") + ".png"),
+                             errors[key + "/vertices"], errors[key + "/triangles"],
+                             errors[key][ids], frame)
     except MorphableError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -160,7 +160,7 @@ def test_command_on_james(james_paths, tmp_path):
     report = tmp_path / "r.json"
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--methods", *methods,
                 "--conditions", "cooperative", "outdoor", "--frames", "2", "--video-frames", "6",
-                "--report", report)
+                "--report", report, "--heatmaps", tmp_path)
     assert r.returncode == 0, r.stderr
     assert "cooperative" in r.stdout and "± " in r.stdout and "s/frame" in r.stdout
     rep = json.loads(report.read_text())
@@ -173,6 +173,7 @@ def test_command_on_james(james_paths, tmp_path):
     assert rep["methods"]["mean-face"]["cooperative"]["s_per_frame"] == 0.0
     errs = np.load(tmp_path / "r_errors.npz")
     assert errs["mean-face/outdoor"].shape == (3448,)
+    assert (tmp_path / "mean-face_outdoor.png").stat().st_size > 5000
 
 
 def test_command_bad_input_one_line_no_output(james_paths, tmp_path):
