@@ -218,7 +218,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int):
         else:
             from .videos import detect_landmarks
 
-            out.append(detect_landmarks(np.asarray(Image.open(p).convert("RGB")), source=str(p)))
+            out.append(detect_landmarks(np.asarray(Image.open(p).convert("RGB"))))
     return np.stack(out), sizes.pop()
 
 

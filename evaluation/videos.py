@@ -325,43 +325,18 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
     return np.stack(out)
 
 
-def detect_landmarks(image, source: str = "frame") -> np.ndarray:
-    """68 iBUG landmarks of the largest face dlib finds -> (68, 2) px, all NaN if none.
+def detect_landmarks(image) -> np.ndarray:
+    """68 iBUG landmarks of the largest face (``morphable.fitting.detect_landmarks``, dlib)
+    -> (68, 2) px; all NaN when no face is found, so that the frame is simply not used.
 
     Parameters
     ----------
     image : (H, W, 3) uint8 or float in [0, 1]
     """
-    import importlib.util
-    from pathlib import Path
+    from morphable.errors import FitError
+    from morphable.fitting import detect_landmarks as dlib_landmarks
 
     try:
-        import dlib
-    except ImportError as e:
-        raise InputError(f"{source}: landmark detection needs dlib-bin ({e})") from None
-    # face_recognition_models' own locator imports pkg_resources; find its file directly
-    spec = importlib.util.find_spec("face_recognition_models")
-    dat = (Path(next(iter(spec.submodule_search_locations))) / "models"
-           / "shape_predictor_68_face_landmarks.dat") if spec else None
-    if dat is None or not dat.is_file():
-        raise InputError(f"{source}: landmark detection needs face-recognition-models "
-                         f"(its 68-point dlib model was not found)")
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = (np.clip(img, 0.0, 1.0) * 255).round().astype(np.uint8)
-    detector, predictor = _dlib_models(dlib, str(dat))
-    faces = detector(np.ascontiguousarray(img), 1)
-    if len(faces) == 0:
+        return dlib_landmarks(image)
+    except FitError:
         return np.full((68, 2), np.nan)
-    face = max(faces, key=lambda r: r.width() * r.height())
-    shape = predictor(img, face)
-    return np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
-
-
-_DLIB = {}
-
-
-def _dlib_models(dlib, predictor_path: str):
-    if predictor_path not in _DLIB:
-        _DLIB[predictor_path] = (dlib.get_frontal_face_detector(), dlib.shape_predictor(predictor_path))
-    return _DLIB[predictor_path]
