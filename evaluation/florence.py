@@ -35,6 +35,8 @@ from .videos import CONDITIONS, sample_frames, synthetic_video
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
            "format_table", "save_heatmap", "main"]
 
+MIN_LANDMARKS = 10
+"""Frames with fewer landmarks are dropped before reconstruction."""
 METHODS = ("ours", "ours-independent", "eos", "mean-face", "gar")
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
           "nose tip to the tangent plane of the nearest scan vertex, after alignment")
@@ -108,11 +110,18 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
 
     Returns
     -------
-    Reconstruction (average of the per-frame meshes).
+    Reconstruction (average of the per-frame meshes; frames with fewer than
+    :data:`MIN_LANDMARKS` landmarks are left out).
     """
     effort = dict(effort or {})
     peers = peers if peers is not None else {}
     lm = np.asarray(landmarks, dtype=np.float64)
+    if lm.ndim != 3 or lm.shape[1:] != (68, 2):
+        raise InputError(f"{method}: expected (N, 68, 2) landmarks, got {lm.shape}")
+    # a frame with (almost) no landmarks is a detector failure: the video goes on without it
+    lm = lm[np.isfinite(lm).all(-1).sum(-1) >= MIN_LANDMARKS]
+    if len(lm) == 0:
+        raise FitError(f"{method}: no frame has {MIN_LANDMARKS} landmarks")
     if method == "mean-face":
         return _reconstruction(model, model.mean.astype(np.float64), 0.0, len(lm))
     if method in ("ours", "ours-independent"):
