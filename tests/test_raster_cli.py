@@ -66,10 +66,12 @@ def test_bake_from_fit_report(tmp_path, sfm):
     assert (mask == visibility(v, sfm.triangles, cam).mask).mean() > 0.995
     # the Camera.to_dict form works too, and --size rescales the view
     fit.write_text(json.dumps({"model": "sfm", "cameras": [cam.to_dict()]}))
-    out = run("bake", "--fit", fit, "--size", 160, "--out", tmp_path / "n2.png", "--mask", tmp_path / "m2.png")
+    out = run("bake", "--fit", fit, "--size", 160, "--out", tmp_path / "n2.png",
+              "--mask", tmp_path / "m2.png")
     assert out.returncode == 0, out.stderr
     m2 = np.asarray(Image.open(tmp_path / "m2.png")) > 0
-    assert m2.shape == (120, 160) and abs(m2.sum() / 4 - visibility(sfm.mean, sfm.triangles, cam).mask.sum()) < 40
+    assert m2.shape == (120, 160)
+    assert abs(m2.sum() / 4 - visibility(sfm.mean, sfm.triangles, cam).mask.sum()) < 40
 
 
 def test_render_textured_scan_and_model(tmp_path, data_dir):
@@ -80,13 +82,16 @@ def test_render_textured_scan_and_model(tmp_path, data_dir):
     bg = (img == [0, 0, 255]).all(-1)
     assert 0.2 < (~bg).mean() < 0.9
     assert img[~bg][:, 0].mean() > img[~bg][:, 2].mean()  # skin tones from the texture
-    out = run("render", "sfm", "--size", 48, "--light=-1,0,1,0.8", "--shadows", "--out", tmp_path / "s.png")
+    out = run("render", "sfm", "--size", 48, "--light=-1,0,1,0.8", "--shadows",
+              "--out", tmp_path / "s.png")
     assert out.returncode == 0, out.stderr
     img = np.asarray(Image.open(tmp_path / "s.png")).astype(float)
     fg = ~(img == 255).all(-1)
     cols = np.nonzero(fg.any(0))[0]
-    left, right = img[:, cols[0]:cols[0] + 8][fg[:, cols[0]:cols[0] + 8]], img[:, cols[-1] - 7:cols[-1] + 1][fg[:, cols[-1] - 7:cols[-1] + 1]]
-    assert left.mean() > right.mean() + 20  # lit from the image's left
+    left = slice(cols[0], cols[0] + 8)
+    right = slice(cols[-1] - 7, cols[-1] + 1)
+    # lit from the image's left
+    assert img[:, left][fg[:, left]].mean() > img[:, right][fg[:, right]].mean() + 20
     out = run("render", "ict", "--size", 32, "--sh", "1,0,0,0,0,0,0,0,0", "--out", tmp_path / "i.png")
     assert out.returncode == 0, out.stderr
 

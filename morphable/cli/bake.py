@@ -13,7 +13,8 @@ def add_camera_arguments(p, size_default):
                    help=f"image size in pixels (square; default {size_default}, or the fit's image)")
     p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
                    help="projection for MESH (default affine); a fit brings its own camera")
-    p.add_argument("--yaw", type=float, default=0.0, help="degrees, positive turns the nose to the image right")
+    p.add_argument("--yaw", type=float, default=0.0,
+                   help="degrees, positive turns the nose to the image right")
     p.add_argument("--pitch", type=float, default=0.0, help="degrees, positive turns the nose down")
     p.add_argument("--roll", type=float, default=0.0, help="degrees, counter-clockwise in the image")
     p.add_argument("--supersample", type=int, default=1, help="antialiasing samples per pixel and axis")

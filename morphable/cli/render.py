@@ -18,7 +18,8 @@ def _numbers(text, n, what):
 
 
 def add_parser(sub):
-    p = sub.add_parser("render", help="shaded image of a mesh (vertex colour or texture, SH or directional light)")
+    p = sub.add_parser("render", help="shaded image of a mesh (vertex colour or texture, "
+                       "SH or directional light)")
     add_source_arguments(p)
     add_camera_arguments(p, 512)
     p.add_argument("--texture", help="texture image for the mesh's UVs (default: the OBJ's material map)")
@@ -26,7 +27,8 @@ def add_parser(sub):
     p.add_argument("--color", default="0.75,0.75,0.75", help="surface colour r,g,b in [0, 1]")
     p.add_argument("--light", action="append", metavar="X,Y,Z[,I]",
                    help="directional light towards X,Y,Z in the camera frame (+z to the viewer), "
-                        "intensity I (default 0.75); repeatable")
+                        "intensity I (default 0.75); repeatable; write --light=-1,0,1 for a "
+                        "negative first number")
     p.add_argument("--ambient", type=float, default=0.3, help="ambient light with --light")
     p.add_argument("--sh", metavar="C0,...,C8", help="9 (grey) or 27 (RGB, per coefficient r,g,b) "
                    "SH coefficients instead of --light; 1,0,...,0 is uniform white")

@@ -4,13 +4,17 @@ The torch path is the differentiable core of the renderers: visibility (which tr
 which weights) is a constant, the attributes carry the gradient. Gradients therefore flow to
 whatever the attributes were computed from (vertex normals -> vertices -> alpha, beta, theta),
 but not through the silhouette.
+
+Interpolation is a product with a sparse (samples x vertices) matrix of barycentric weights,
+built once per visibility (scipy CSR for numpy, torch CSR for torch, whose backward pass is the
+product with the transposed matrix).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..errors import InputError
-from .visibility import Visibility
+from .visibility import Visibility, _key
 
 __all__ = ["interpolate"]
 
@@ -25,34 +29,68 @@ def _interpolate_numpy(vis: Visibility, attributes, triangles):
     a = a[:, None] if flat else a
     if a.ndim != 2:
         raise InputError(f"numpy attributes must be (V, C) or (V,), got {a.shape}")
-    idx = vis.corners(triangles)
-    if idx.size and idx.max() >= len(a):
-        raise InputError(f"attributes have {len(a)} rows, the triangles index up to {idx.max()}")
     dtype = np.result_type(a.dtype, np.float32)
-    vals = np.einsum("nk,nkc->nc", vis.weights.astype(dtype), a[idx].astype(dtype, copy=False))
-    out = np.zeros((vis.triangle_id.size, a.shape[1]), dtype=dtype)
-    out[vis.pixels] = vals
+    out = vis.matrix(len(a), triangles, dtype) @ a.astype(dtype, copy=False)
     out = out.reshape(vis.shape + (a.shape[1],))
     return out[..., 0] if flat else out
 
 
-def _interpolate_torch(vis: Visibility, attributes, triangles):
+def _torch_matrices(vis: Visibility, n_rows, triangles, dtype, device):
     import torch
 
+    key = ("torch", n_rows, None if triangles is None else _key(np.asarray(triangles)), str(dtype),
+           str(device))
+    if key not in vis._extra:
+        import warnings
+
+        m = vis.matrix(n_rows, triangles, np.float64)
+        with warnings.catch_warnings():  # sparse CSR support is flagged beta in torch
+            warnings.simplefilter("ignore")
+            pair = []
+            for s in (m, m.T.tocsr()):
+                pair.append(torch.sparse_csr_tensor(
+                    torch.as_tensor(s.indptr, dtype=torch.int64),
+                    torch.as_tensor(s.indices, dtype=torch.int64),
+                    torch.as_tensor(s.data, dtype=dtype), size=s.shape, device=device))
+        vis._extra[key] = tuple(pair)
+    return vis._extra[key]
+
+
+def _sparse_apply():
+    import torch
+
+    class SparseApply(torch.autograd.Function):
+        """y = M @ x with a constant sparse M; the gradient is M^T @ dy (itself differentiable)."""
+
+        @staticmethod
+        def forward(ctx, x, m, mt):
+            ctx.pair = (m, mt)
+            return m @ x
+
+        @staticmethod
+        def backward(ctx, grad):
+            m, mt = ctx.pair
+            return SparseApply.apply(grad.contiguous(), mt, m), None, None
+
+    return SparseApply
+
+
+_SPARSE_APPLY = []
+
+
+def _interpolate_torch(vis: Visibility, attributes, triangles):
     a = attributes
     if a.ndim not in (2, 3):
         raise InputError(f"torch attributes must be (V, C) or (B, V, C), got {tuple(a.shape)}")
-    idx = torch.as_tensor(vis.corners(triangles), device=a.device)
-    if idx.numel() and int(idx.max()) >= a.shape[-2]:
-        raise InputError(f"attributes have {a.shape[-2]} rows, the triangles index up to "
-                         f"{int(idx.max())}")
-    w = torch.as_tensor(vis.weights, device=a.device, dtype=a.dtype)
-    g = a[..., idx.reshape(-1), :].reshape(a.shape[:-2] + tuple(idx.shape) + (a.shape[-1],))
-    vals = (g * w[..., None]).sum(-2)  # (..., N, C)
-    pix = torch.as_tensor(vis.pixels, device=a.device)
-    out = a.new_zeros(a.shape[:-2] + (vis.triangle_id.size, a.shape[-1]))
-    out = out.index_copy(out.ndim - 2, pix, vals)
-    return out.reshape(a.shape[:-2] + tuple(vis.shape) + (a.shape[-1],))
+    if not _SPARSE_APPLY:
+        _SPARSE_APPLY.append(_sparse_apply())
+    m, mt = _torch_matrices(vis, a.shape[-2], triangles, a.dtype, a.device)
+    if a.ndim == 3:  # (B, V, C) -> (V, B * C): one sparse product for the whole batch
+        B, V, C = a.shape
+        x = a.permute(1, 0, 2).reshape(V, B * C)
+        y = _SPARSE_APPLY[0].apply(x, m, mt)
+        return y.reshape(tuple(vis.shape) + (B, C)).permute(2, 0, 1, 3)
+    return _SPARSE_APPLY[0].apply(a.contiguous(), m, mt).reshape(tuple(vis.shape) + (a.shape[-1],))
 
 
 def interpolate(vis, attributes, triangles=None):

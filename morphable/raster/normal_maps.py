@@ -26,8 +26,10 @@ def _normalize(n, mask):
         m = torch.as_tensor(mask, device=n.device)
         unit = n * torch.rsqrt((n * n).sum(-1, keepdim=True) + _TINY)
         return unit * m[..., None].to(n.dtype)
-    norm = np.sqrt((n * n).sum(-1, keepdims=True) + _TINY)
-    return np.where(mask[..., None], n / norm, 0.0).astype(n.dtype, copy=False)
+    out = np.zeros_like(n)
+    fg = n[mask]
+    out[mask] = fg / np.sqrt((fg * fg).sum(-1, keepdims=True) + _TINY)
+    return out
 
 
 def _resolve(vis, n):
@@ -52,7 +54,10 @@ def _rotate(n, R):
         if R.ndim == 3:
             return torch.einsum("bij,b...j->b...i", R, n)
         return n @ R.T
-    return n @ np.asarray(R, dtype=n.dtype).T
+    R = np.asarray(R, dtype=n.dtype)
+    if R.ndim == 3:
+        return np.einsum("bij,b...j->b...i", R, n)
+    return n @ R.T
 
 
 def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None,
@@ -115,10 +120,31 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
         tri = torch.as_tensor(np.asarray(triangles, dtype=np.int64), device=vertices.device)
     else:
         vertices, tri = check_mesh(vertices, triangles)
-    n = interpolate(vis, vertex_normals(vertices, tri, weighting=weighting))
+    if not torch_in and first.supersample == 1:
+        # fast path: interpolate and normalise the foreground samples only
+        n = vertex_normals(vertices, tri, weighting=weighting)
+        if frame == "camera":
+            n = n @ first.camera.rotation.T.astype(n.dtype)
+        dtype = np.result_type(n.dtype, np.float32)
+        fg = first.matrix(len(n), dtype=dtype, foreground=True) @ n.astype(dtype, copy=False)
+        out = np.zeros((first.triangle_id.size, 3), dtype=dtype)
+        out[first.pixels] = fg / np.sqrt((fg * fg).sum(-1, keepdims=True) + _TINY)
+        return out.reshape(first.shape + (3,))
+    return _resolve(vis, _interpolated_normals(vertices, tri, vis, frame, rotation, weighting))
+
+
+def _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting):
+    n = vertex_normals(vertices, triangles, weighting=weighting)
     if frame == "camera":
-        n = _rotate(n, camera_rotation(vis, rotation))
-    return _resolve(vis, n)
+        # rotation and interpolation are linear: rotating the V vertex normals is cheaper
+        # than rotating every sample
+        R = camera_rotation(vis, rotation)
+        if _is_torch(n) and getattr(R, "ndim", 2) == 3 and n.ndim == 2:
+            n = n.expand(R.shape[0], *n.shape)
+        elif not _is_torch(n) and np.ndim(R) == 3 and n.ndim == 2:
+            n = np.broadcast_to(n, (len(R),) + n.shape)
+        n = _rotate(n, R)
+    return interpolate(vis, n)
 
 
 def camera_rotation(vis, rotation=None):
@@ -137,9 +163,7 @@ def sample_normals(vertices, triangles, vis, frame="camera", rotation=None, weig
     ``vertices`` (V, 3) numpy or torch (V, 3) / (B, V, 3); ``triangles`` (F, 3) numpy or
     tensor; returns (Hs, Ws, 3) or (B, Hs, Ws, 3).
     """
-    n = interpolate(vis, vertex_normals(vertices, triangles, weighting=weighting))
-    if frame == "camera":
-        n = _rotate(n, camera_rotation(vis, rotation))
+    n = _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting)
     mask = np.stack([v.mask for v in vis]) if isinstance(vis, (list, tuple)) else vis.mask
     return _normalize(n, mask)
 

@@ -64,7 +64,7 @@ def _shadow_mask(v, t, vis, light_dirs_world, normals_world):
         # start a little off the surface on the lit side to avoid hitting the own triangle
         side = np.where((ng @ d)[:, None] >= 0, ng, -ng)
         origins = p + eps * (side + d)
-        t_hit, _, _ = cast(sc, origins, np.broadcast_to(d, origins.shape))
+        t_hit, _, _ = cast(sc, np.concatenate([origins, np.broadcast_to(d, origins.shape)], -1))
         lit = np.ones(vis.shape)
         lit[vis.mask] = ~np.isfinite(t_hit)
         out[i] = lit
@@ -134,10 +134,12 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
                              "interpolate/shade_sh directly")
         tri = torch.as_tensor(t, device=vertices.device)
         n = sample_normals(vertices, tri, vis)
-        as_xp = lambda a: torch.as_tensor(np.array(a), dtype=vertices.dtype, device=vertices.device)  # noqa: E731
+        def as_xp(a):
+            return torch.as_tensor(np.array(a), dtype=vertices.dtype, device=vertices.device)
     else:
         n = sample_normals(v_np, t, vis)
-        as_xp = lambda a: np.asarray(a, dtype=like)  # noqa: E731
+        def as_xp(a):
+            return np.asarray(a, dtype=like)
 
     # albedo per sample
     if texture is not None:

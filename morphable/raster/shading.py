@@ -143,9 +143,11 @@ def shade_directional(normals, albedo, lights, ambient=0.0, visible=None):
     if torch_in:
         import torch
 
-        as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=normals.dtype, device=normals.device)  # noqa: E731
+        def as_t(a):
+            return torch.as_tensor(np.asarray(a), dtype=normals.dtype, device=normals.device)
     else:
-        as_t = lambda a: np.asarray(a, dtype=normals.dtype)  # noqa: E731
+        def as_t(a):
+            return np.asarray(a, dtype=normals.dtype)
     total = as_t(np.broadcast_to(np.asarray(ambient, dtype=np.float64), (3,)))
     total = total + normals[..., :1] * 0  # broadcast to (..., 3)
     for i, light in enumerate(lights):

@@ -96,8 +96,35 @@ class Visibility:
         ``triangles`` (F, 3) replaces :attr:`triangles`, e.g. ``triangle_uv`` to look up
         per-corner texture coordinates.
         """
-        ids = self.triangle_id.ravel()[self.pixels]
-        return (self.triangles if triangles is None else np.asarray(triangles))[ids]
+        if triangles is None:
+            if "corners" not in self._extra:
+                self._extra["corners"] = self.triangles[self.triangle_id.ravel()[self.pixels]]
+            return self._extra["corners"]
+        return np.asarray(triangles)[self.triangle_id.ravel()[self.pixels]]
+
+    def matrix(self, n_rows: int, triangles=None, dtype=np.float64, foreground: bool = False):
+        """Sparse (Hs * Ws, n_rows) interpolation matrix: row p holds the barycentric weights
+        of sample p on the corner ids of its triangle (empty rows on background), so that
+        ``matrix @ attributes`` interpolates. ``foreground=True``: only the rows of
+        :attr:`pixels`, (N, n_rows). scipy CSR, cached per arguments."""
+        key = ("matrix", n_rows, None if triangles is None else _key(np.asarray(triangles)),
+               np.dtype(dtype).str, foreground)
+        if key not in self._extra:
+            import scipy.sparse as sp
+
+            idx = self.corners(triangles)
+            if idx.size and idx.max() >= n_rows:
+                raise InputError(f"attributes have {n_rows} rows, the triangles index up to "
+                                 f"{idx.max()}")
+            if foreground:
+                indptr, rows = np.arange(0, 3 * len(idx) + 1, 3), len(idx)
+            else:
+                count = np.zeros(self.triangle_id.size + 1, dtype=np.int64)
+                count[self.pixels + 1] = 3
+                indptr, rows = np.cumsum(count), self.triangle_id.size
+            self._extra[key] = sp.csr_matrix(
+                (self.weights.astype(dtype).ravel(), idx.ravel(), indptr), shape=(rows, n_rows))
+        return self._extra[key]
 
     def coverage(self) -> np.ndarray:
         """(H, W) float in [0, 1]: the fraction of each pixel's samples on the mesh."""
@@ -190,21 +217,54 @@ def scene(vertices, triangles):
     return _cached(_SCENES, _SCENE_CACHE_SIZE, _key(v32, t32), make)
 
 
-def cast(sc, origins, directions):
-    """Cast rays (N, 3) + (N, 3) -> (t_hit (N,) float32, triangle (N,) int64 with -1 for
-    misses, barycentric (N, 3) float32)."""
+def cast(sc, rays):
+    """Cast rays (..., 6) = origin, direction -> (t_hit (...) float32, triangle (...) int64
+    with -1 for misses, barycentric (..., 3) float32)."""
     o3d = _import_open3d()
-    rays = np.concatenate([origins, directions], -1).astype(np.float32, copy=False)
-    hit = sc.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))
-    prim = hit["primitive_ids"].numpy()
-    tri = np.where(prim == _INVALID, -1, prim.astype(np.int64))
+    rays = np.ascontiguousarray(rays, dtype=np.float32)
+    hit = sc.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    # INVALID_ID is 2**32 - 1, i.e. -1 read as int32 (triangle counts stay below 2**31)
+    tri = hit["primitive_ids"].numpy().view(np.int32).astype(np.int64)
     uv = hit["primitive_uvs"].numpy()
     bary = np.empty(uv.shape[:-1] + (3,), dtype=np.float32)
     # Embree's (u, v) weight corners 1 and 2: p = (1 - u - v) p0 + u p1 + v p2
-    bary[..., 0] = 1.0 - uv[..., 0] - uv[..., 1]
     bary[..., 1:] = uv
+    np.subtract(1.0, uv.sum(-1), out=bary[..., 0])
     bary[tri < 0] = 0.0
     return hit["t_hit"].numpy(), tri, bary
+
+
+def _window_rays(camera, x0, x1, y0, y1, s, z0):
+    """World-frame float32 rays (h, w, 6) through the samples of a pixel window.
+
+    Rays are defined in the camera frame and rotated to the world frame, where the cached
+    scene lives. Perspective: from the camera centre with directions ``(Xc/-Zc, Yc/-Zc, -1)``
+    (unnormalised, so the hit distance is the depth). Affine: parallel rays along -z from
+    the plane ``Zc = z0`` just in front of the mesh, so float32 hit distances stay small.
+    """
+    R, tr = camera.rotation, camera.translation
+    if camera.kind == "perspective":
+        o3d = _import_open3d()
+        # open3d's pinhole rays pass through (j + 0.5, i + 0.5) of an OpenCV camera (y down,
+        # z forward); scaling and shifting its intrinsics maps them onto our samples
+        f, (cx, cy) = camera.focal, camera.principal
+        K = np.array([[f * s, 0, s * (cx + 0.5 - x0)], [0, f * s, s * (cy + 0.5 - y0)], [0, 0, 1]])
+        flip = np.diag([1.0, -1.0, -1.0])
+        E = np.eye(4)
+        E[:3, :3], E[:3, 3] = flip @ R, flip @ tr
+        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+            o3d.core.Tensor(K), o3d.core.Tensor(E), (x1 - x0) * s, (y1 - y0) * s)
+        return rays.numpy()
+    xc = (((np.arange(x0 * s, x1 * s) + 0.5) / s - 0.5 - camera.principal[0]) / camera.scale)
+    yc = ((camera.principal[1] - ((np.arange(y0 * s, y1 * s) + 0.5) / s - 0.5)) / camera.scale)
+    R32 = R.astype(np.float32)
+    rays = np.empty((len(yc), len(xc), 6), dtype=np.float32)
+    o = rays[..., :3]
+    np.multiply(xc.astype(np.float32)[None, :, None], R32[0], out=o)
+    o += yc.astype(np.float32)[:, None, None] * R32[1]
+    o += ((np.array([0.0, 0.0, z0]) - tr) @ R).astype(np.float32)
+    rays[..., 3:] = -R32[2]
+    return rays
 
 
 def _window(camera, cam_points, width, height):
@@ -281,33 +341,13 @@ def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
     depth = np.full((Hs, Ws), np.inf)
     x0, x1, y0, y1 = _window(camera, pc, W, H)
     if x1 > x0 and y1 > y0:
-        # samples of the pixel window, in image coordinates
-        xs = (np.arange(x0 * s, x1 * s) + 0.5) / s - 0.5
-        ys = (np.arange(y0 * s, y1 * s) + 0.5) / s - 0.5
-        u, w = np.meshgrid(xs, ys)
-        # rays are built in the camera frame and rotated to the world frame, where the
-        # cached scene lives; the affine origins sit just in front of the mesh so that
-        # float32 hit distances stay small and precise
-        if camera.kind == "affine":
-            z0 = pc[:, 2].max() + 1.0
-            oc = np.stack([(u - camera.principal[0]) / camera.scale,
-                           (camera.principal[1] - w) / camera.scale, np.full_like(u, z0)], -1)
-            dc = np.array([0.0, 0.0, -1.0])
-        else:
-            z0 = 0.0
-            oc = np.zeros(3)
-            # unnormalised so that t_hit is the depth -Zc directly
-            dc = np.stack([(u - camera.principal[0]) / camera.focal,
-                           (camera.principal[1] - w) / camera.focal, -np.ones_like(u)], -1)
-        R, tr = camera.rotation, camera.translation
-        origins = np.broadcast_to((oc - tr) @ R, u.shape + (3,))
-        directions = np.broadcast_to(dc @ R, u.shape + (3,))
-        t_hit, tid, b = cast(scene(v, t), origins.reshape(-1, 3), directions.reshape(-1, 3))
+        z0 = pc[:, 2].max() + 1.0 if camera.kind == "affine" else 0.0
+        t_hit, tid, b = cast(scene(v, t), _window_rays(camera, x0, x1, y0, y1, s, z0))
         sl = (slice(y0 * s, y1 * s), slice(x0 * s, x1 * s))
-        tri_id[sl] = tid.reshape(u.shape)
-        bary[sl] = b.reshape(u.shape + (3,))
-        d = t_hit.astype(np.float64).reshape(u.shape) - z0
-        depth[sl] = np.where(tid.reshape(u.shape) >= 0, d, np.inf)
+        tri_id[sl] = tid
+        bary[sl] = b
+        # perspective: t_hit is -Zc; affine: the rays start at Zc = z0
+        depth[sl] = np.where(tid >= 0, t_hit.astype(np.float64) - z0, np.inf)
     return Visibility(tri_id, bary, depth, t, camera=camera, supersample=s)
 
 
@@ -357,10 +397,9 @@ def uv_visibility(triangles, uv, triangle_uv=None, size: int = 256) -> Visibilit
         sc = scene(plane, tuv)
         c = (np.arange(size) + 0.5) / size
         uu, vv = np.meshgrid(c, 1.0 - c)
-        origins = np.stack([uu, vv, np.ones_like(uu)], -1).reshape(-1, 3)
-        directions = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
-        _, tid, b = cast(sc, origins, directions)
-        return Visibility(tid.reshape(size, size), b.reshape(size, size, 3),
+        rays = np.stack([uu, vv, np.ones_like(uu)] + [np.zeros_like(uu)] * 2 + [-np.ones_like(uu)], -1)
+        _, tid, b = cast(sc, rays)
+        return Visibility(tid, b,
                           np.zeros((size, size)), t, camera=None, supersample=1)
 
     return _cached(_UV_TABLES, _UV_CACHE_SIZE, _key(t, uv, tuv, np.array([size])), make)
