@@ -115,6 +115,11 @@ def test_render_gradient_reaches_vertices_and_colours():
     img.sum().backward()
     for g in (verts.grad, colors.grad, sh.grad):
         assert torch.isfinite(g).all() and g.abs().max() > 0
+    # a texture through the patch's UVs gets gradients too
+    uv = (v[:, :2] - v[:, :2].min(0)) / np.ptp(v[:, :2], 0)
+    tex = torch.rand(8, 8, 3, dtype=torch.float64, requires_grad=True)
+    render(verts, t, vis=vis, texture=(uv, None, tex), light=sh).sum().backward()
+    assert torch.isfinite(tex.grad).all() and (tex.grad != 0).sum() > 20
 
 
 def test_torch_errors():

@@ -83,7 +83,8 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
     camera : morphable.camera.Camera (or None when ``vis`` is given)
     colors : (V, 3) float in [0, 1] or uint8, or (3,) one colour; default light grey
     texture : (uv (T, 2), triangle_uv (F, 3) or None, image (h, w, 3) or a path), optional
-        Albedo from a texture through UVs (v up); takes precedence over ``colors``.
+        Albedo from a texture through UVs (v up); takes precedence over ``colors``. A torch
+        image (h, w, 3) in [0, 1] gets gradients (torch vertices).
     light : None, SH coefficients (9,) / (9, 3), a DirectionalLight or a list of them
         Directions in the camera frame (+z towards the viewer). None: one light from the
         upper right front (:data:`DEFAULT_LIGHT`) plus ``ambient``.
@@ -103,9 +104,9 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
 
     Notes
     -----
-    Torch vertices (and torch ``colors`` / SH ``light``) give a differentiable image with
-    the visibility fixed (the classical differentiable renderer); textures, directional
-    lights and shadows are numpy-only there except for directional lights without shadows.
+    Torch vertices (and torch ``colors``, texture image or SH ``light``) give a
+    differentiable image with the visibility fixed: the classical differentiable renderer.
+    Cast shadows are numpy-only.
 
     Examples
     --------
@@ -151,7 +152,11 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
         tuv = t if tuv is None else np.asarray(tuv, dtype=np.int64)
         if uv.ndim != 2 or uv.shape[1] != 2 or tuv.shape != t.shape or tuv.max() >= len(uv):
             raise InputError(f"texture uv must be (T, 2) with triangle_uv {t.shape} ids into it")
-        albedo = as_xp(sample_texture(as_texture(image), interpolate(vis, uv, tuv)))
+        uv_samples = interpolate(vis, uv, tuv)
+        if _is_torch(image):  # a differentiable texture (torch (h, w, 3) in [0, 1])
+            albedo = sample_texture(image, as_xp(uv_samples))
+        else:
+            albedo = as_xp(sample_texture(as_texture(image), uv_samples))
     elif colors is None:
         albedo = as_xp(_GREY)
     elif _is_torch(colors):

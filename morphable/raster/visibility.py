@@ -19,6 +19,7 @@ Conventions
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -33,7 +34,7 @@ _SCENES: "OrderedDict[bytes, object]" = OrderedDict()
 _SCENE_CACHE_SIZE = 4
 _UV_TABLES: "OrderedDict[bytes, Visibility]" = OrderedDict()
 _UV_CACHE_SIZE = 8
-_INVALID = np.iinfo(np.uint32).max  # open3d's RaycastingScene.INVALID_ID
+_LOCK = threading.Lock()  # the caches are shared by threads (batch engines, data loaders)
 
 
 @dataclass(eq=False)
@@ -182,13 +183,15 @@ def _key(*arrays) -> bytes:
 
 
 def _cached(cache: OrderedDict, size: int, key: bytes, make):
-    if key in cache:
-        cache.move_to_end(key)
-        return cache[key]
-    value = make()
-    cache[key] = value
-    while len(cache) > size:
-        cache.popitem(last=False)
+    with _LOCK:
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+    value = make()  # outside the lock: two threads may both build, one result is kept
+    with _LOCK:
+        cache[key] = value
+        while len(cache) > size:
+            cache.popitem(last=False)
     return value
 
 
