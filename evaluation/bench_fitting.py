@@ -3,9 +3,10 @@
 Synthetic ground truth with the Surrey Face Model: random identities (alpha ~ N(0, 1)),
 random blendshape expressions, poses with yaw in [-80, 80], pitch and roll in [-30, 30]
 degrees, a scaled orthographic camera on a 512 px image, landmark noise sigma in {0, 1, 3} px.
-Jaw landmarks are placed as a detector would: along the model's jaw line (between its
-contour vertices, not on them), and where that line is self-occluded (back-facing) moved
-outwards onto the face's 2D outline.
+Jaw landmarks are placed as a detector would (``morphable.fitting.simulate_landmarks``):
+along the model's jaw line (between its contour vertices, not on them), and where that line
+is self-occluded (back-facing) marched along a horizontal line of vertices to the cheek's
+silhouette (3DDFA-style landmark marching, with the true mesh's normals).
 
 Both tools get the same landmarks; their meshes are compared with the ground truth after a
 similarity alignment over all vertices. Landmark RMSE is computed the same way for both
@@ -34,11 +35,9 @@ import numpy as np  # noqa: E402
 
 from morphable import load_model
 from morphable.camera import Camera, euler_to_matrix
-from morphable.fitting import fit_landmarks, landmark_bank
-from morphable.fitting.correspondences import (Correspondences, _expected_jaw_points,
-                                               march_lines, slide_contours)
+from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
+from morphable.fitting.correspondences import Correspondences, slide_contours
 from morphable.io.atomic import atomic_path
-from morphable.normals import vertex_normals
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SFM = DATA / "models" / "sfm"
@@ -63,13 +62,8 @@ def similarity_error(fitted, truth):
 
 
 def make_sample(model, rng):
-    """One synthetic face: ground-truth mesh, camera, clean landmarks (68, 2).
-
-    Jaw points lie on the jaw line, evenly spaced from the top to the chin and generally
-    between vertices; where the jaw line faces away from the camera (ground-truth normals)
-    the point marches along its horizontal line of vertices to the first one facing the
-    camera, the cheek's silhouette, where a 68-point detector puts it.
-    """
+    """One synthetic face: ground-truth mesh, pose, detector-like landmarks (68, 2)
+    (:func:`morphable.fitting.simulate_landmarks`)."""
     alpha = rng.standard_normal(model.n_identity)
     beta = rng.uniform(0, 0.7, model.n_expression) * (rng.uniform(size=model.n_expression) < 0.4)
     yaw, pitch, roll = rng.uniform(-80, 80), rng.uniform(-30, 30), rng.uniform(-30, 30)
@@ -77,26 +71,8 @@ def make_sample(model, rng):
     cam = Camera(kind="affine", rotation=euler_to_matrix(yaw, pitch, roll),
                  translation=np.r_[rng.uniform(-10, 10, 2), -600.0], scale=rng.uniform(1.3, 1.9),
                  image_size=(IMAGE, IMAGE))
-    lms = np.full((68, 2), np.nan)
-    fixed = model.landmark_ids >= 0
-    lms[fixed] = cam.project(verts[model.landmark_ids[fixed]])
-    normals = vertex_normals(verts, model.triangles) @ cam.rotation.T
-    bank = landmark_bank(model)
-    for lms_side, chain in bank.polylines:
-        chain_ids = bank.vertex_ids[chain]
-        _, at, mean_arc = _expected_jaw_points(model, lms_side, chain_ids)
-        P, Nz = verts[chain_ids], normals[chain_ids, 2]
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
-        at = at / mean_arc[-1] * arc[-1]
-        lines = march_lines(model, lms_side, chain_ids)
-        for j, a, line in zip(lms_side, at, lines):
-            p = np.array([np.interp(a, arc, P[:, k]) for k in range(3)])
-            if np.interp(a, arc, Nz) < 0:
-                front = np.flatnonzero(normals[line, 2] >= 0)
-                p = verts[line[front[0] if front.size else -1]]
-            lms[j] = cam.project(p[None])[0]
     return {"verts": verts, "alpha": alpha, "beta": beta, "yaw": yaw, "pitch": pitch,
-            "roll": roll, "landmarks": lms}
+            "roll": roll, "landmarks": simulate_landmarks(model, cam, vertices=verts)}
 
 
 # --- eos ----------------------------------------------------------------------------------

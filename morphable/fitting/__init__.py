@@ -9,10 +9,11 @@ from .landmark_fit import fit_landmarks
 from .linear import solve_expression, solve_identity
 from .pose import estimate_affine_pose, project
 from .result import FitResult
+from .synthetic import simulate_landmarks
 
 __all__ = ["fit_landmarks", "FitResult", "estimate_affine_pose", "project", "solve_identity",
            "solve_expression", "landmark_bank", "LandmarkBank", "Correspondences", "slide_contours",
-           "detect_landmarks", "detect_faces"]
+           "simulate_landmarks", "detect_landmarks", "detect_faces"]
 
 
 def __getattr__(name):

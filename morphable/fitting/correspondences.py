@@ -11,8 +11,9 @@ line between them.
 Where the jaw line is self-occluded (its normal at the landmark's expected place turns away
 from the camera) a detector puts the jaw point on the face's visible outline instead. The
 correspondence then *marches* (as in 3DDFA's landmark marching) along a horizontal line of
-vertices at the landmark's height, from the jaw line towards the face's midline, to the first
-vertex that faces the camera: the silhouette of the cheek at that height. The test uses the
+vertices at the landmark's height, from the jaw line towards the face's midline, to where the
+surface starts facing the camera (interpolated between the two vertices around the zero of
+the normal's z): the silhouette of the cheek at that height. The test uses the
 mean shape's normals rotated by the current pose, so it never evaluates the full mesh.
 
 A correspondence is ``X = (1 - w) * X[a] + w * X[b]`` over two rows of a :class:`LandmarkBank`
@@ -25,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours", "march_lines"]
+__all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours", "march_lines",
+           "march_silhouette", "expected_jaw_points"]
 
 _RIGHT_JAW = np.arange(0, 8)
 _LEFT_JAW = np.arange(9, 17)
@@ -93,7 +95,7 @@ def _polylines(model, slide: bool) -> list:
     return out
 
 
-def _expected_jaw_points(model, lms, chain_ids):
+def expected_jaw_points(model, lms, chain_ids):
     """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
     (J,) and the chain's cumulative arc lengths (C,), mm.
 
@@ -119,19 +121,23 @@ def _expected_jaw_points(model, lms, chain_ids):
 
 def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
     """Per sliding landmark, the vertex ids of a horizontal line at its height on the mean
-    shape, ordered from the jaw line inwards to the midline (one vertex per ``step_mm`` of x,
-    the closest in height, the front-most on ties)."""
+    shape, ordered from the jaw line inwards to the midline: the chain vertex nearest to the
+    landmark's expected place, then one vertex per ``step_mm`` of x nearer the midline (the
+    closest in height, the front-most on ties)."""
     mean = np.asarray(model.mean, dtype=np.float64)
     ids = np.asarray(model.segments.get("face", np.arange(len(mean))), dtype=np.int64)
-    pts, _, _ = _expected_jaw_points(model, lms, chain_ids)
+    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
     out = []
     for p in pts:
         side = np.sign(p[0]) or 1.0
+        start = chain_ids[np.argmin(np.linalg.norm(mean[chain_ids] - p, axis=1))]
         q = mean[ids]
-        sel = (np.abs(q[:, 1] - p[1]) < height_mm) & (side * q[:, 0] >= 0) & (side * q[:, 0] <= side * p[0] + step_mm)
+        # starting at the jaw line keeps the march continuous where the jaw turns away
+        sel = (np.abs(q[:, 1] - p[1]) < height_mm) & (side * q[:, 0] >= 0) & (
+            side * q[:, 0] <= side * mean[start, 0] - 0.5 * step_mm)
         cand, qc = ids[sel], q[sel]
         bins = np.floor(side * qc[:, 0] / step_mm).astype(np.int64)
-        line = []
+        line = [start]
         for b in sorted(set(bins.tolist()), reverse=True):
             k = np.flatnonzero(bins == b)
             k = k[np.lexsort((-qc[k, 2], np.abs(qc[k, 1] - p[1])))][0]
@@ -169,7 +175,7 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
     normals = vertex_normals(model.mean.astype(np.float64), model.triangles)[rows] if len(rows) else np.zeros((0, 3))
     jaw_normals = []
     for lms, c in polylines:
-        _, at, arc = _expected_jaw_points(model, lms, rows[c])
+        _, at, arc = expected_jaw_points(model, lms, rows[c])
         nj = np.stack([np.interp(at, arc, normals[c][:, k]) for k in range(3)], -1)
         jaw_normals.append(nj / np.maximum(np.linalg.norm(nj, axis=1, keepdims=True), 1e-12))
     bank = LandmarkBank(
@@ -245,6 +251,35 @@ class Correspondences:
         return np.where(self.defined, bank.vertex_ids[np.maximum(r, 0)], -1)
 
 
+def march_silhouette(lines, normals, view):
+    """Where marching lines cross the silhouette: between the last vertex facing away and the
+    first facing the camera, at the zero of the interpolated normal's z.
+
+    Parameters
+    ----------
+    lines : (J, M) int, -1 padded (any ids: rows or vertex ids)
+    normals : (J, M, 3) unit normals of the line vertices
+    view : (N, 3) the third row of each rotation (camera z in model coordinates)
+
+    Returns
+    -------
+    a, b : (N, J) ids from ``lines``; w : (N, J) in [0, 1], the point ``(1 - w) a + w b``
+    """
+    nz = np.einsum("nc,jmc->njm", view, normals)                  # (N, J, M)
+    valid = (lines >= 0)[None]
+    front = (nz >= 0) & valid
+    last = valid.sum(-1) - 1                                       # (1, J)
+    k = np.where(front.any(-1), np.argmax(front, -1), last)        # first facing vertex
+    km = np.maximum(k - 1, 0)
+    z1 = np.take_along_axis(nz, k[..., None], -1)[..., 0]
+    z0 = np.take_along_axis(nz, km[..., None], -1)[..., 0]
+    w = np.where(k > 0, np.clip(-z0 / np.maximum(z1 - z0, 1e-12), 0.0, 1.0), 0.0)
+    L = np.broadcast_to(lines, nz.shape)
+    a = np.take_along_axis(L, km[..., None], -1)[..., 0]
+    b = np.take_along_axis(L, k[..., None], -1)[..., 0]
+    return a, b, w
+
+
 def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, landmarks, mask,
                    rotation=None) -> None:
     """Re-pick the sliding jaw correspondences in place.
@@ -275,12 +310,8 @@ def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, 
         if rotation is not None and march.size:
             hidden = given & ((rotation[:, 2] @ jn.T) < 0)                # (N, J)
             if hidden.any():
-                # first vertex of the line, from the jaw inwards, that faces the camera
-                nz = np.einsum("nc,jmc->njm", rotation[:, 2], bank.normals[np.maximum(march, 0)])
-                front = (nz >= 0) & (march >= 0)[None]
-                k = np.where(front.any(-1), np.argmax(front, -1), (march >= 0).sum(-1)[None] - 1)
-                pick = np.take_along_axis(np.broadcast_to(march, (len(k),) + march.shape), k[..., None], -1)[..., 0]
-                a = np.where(hidden, pick, a)
-                b = np.where(hidden, pick, b)
-                w = np.where(hidden, 0.0, w)
+                pa, pb_, pw = march_silhouette(march, bank.normals[np.maximum(march, 0)], rotation[:, 2])
+                a = np.where(hidden, pa, a)
+                b = np.where(hidden, pb_, b)
+                w = np.where(hidden, pw, w)
         corr.a[:, lms], corr.b[:, lms], corr.w[:, lms] = a, b, w

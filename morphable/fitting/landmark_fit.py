@@ -128,6 +128,24 @@ def _slide(pb: _Problem, st: _State):
 
 
 def _linear_stage(pb: _Problem, n_linear: int) -> _State:
+    # the linear stage works with the affine camera; a pinhole fit starts from it
+    perspective, pb.perspective = pb.perspective, False
+    try:
+        st = _affine_linear_stage(pb, n_linear)
+    finally:
+        pb.perspective = perspective
+    if perspective:
+        # the same image scale at the landmarks' centroid: its depth is f / s
+        used = pb.mask & st.corr.defined
+        z = (_points(pb, st) @ st.R.transpose(0, 2, 1))[..., 2]
+        zc = np.where(used, z, 0.0).sum(1) / np.maximum(used.sum(1), 1)
+        st.t = st.t.copy()
+        st.t[:, 2] = -pb.focal / st.k - zc
+        st.k = pb.focal.copy()
+    return st
+
+
+def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
     N, K, E = pb.N, pb.K, pb.E
     G = 1 if pb.shared else N
     corr = Correspondences.fixed(pb.bank, N)
@@ -158,12 +176,6 @@ def _linear_stage(pb: _Problem, n_linear: int) -> _State:
             ident = _combine(Ag, np.broadcast_to(alpha, (N, K))) @ P.transpose(0, 2, 1)
             beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
         st = _State(R, t, s, alpha, beta, corr, st.rows)
-    if pb.perspective:
-        # same image scale at the face: depth f / s
-        depth = pb.focal / st.k
-        st.t = st.t.copy()
-        st.t[:, 2] = -depth
-        st.k = pb.focal.copy()
     return st
 
 

@@ -1,0 +1,288 @@
+"""Landmark fitting: recovery on synthetic faces, masks, multi-frame, stability, CLI."""
+import json
+
+import numpy as np
+import pytest
+
+from morphable import FitError, InputError
+from morphable.camera import Camera
+from morphable.fitting import estimate_affine_pose, fit_landmarks, project, simulate_landmarks
+
+
+def synth(model, yaw=0.0, pitch=0.0, roll=0.0, identity=None, expression=None, kind="affine",
+          size=(512, 512), face_px=None, distance=600.0):
+    """Detector-like landmarks of a model face, the camera and the true vertices."""
+    cam = Camera.looking_at_face(image_size=size, yaw=yaw, pitch=pitch, roll=roll, kind=kind,
+                                 face_width_px=face_px, distance_mm=distance)
+    verts = model.vertices(identity, expression)
+    return simulate_landmarks(model, cam, vertices=verts), cam, verts
+
+
+def aligned_error(a, b):
+    """Mean vertex distance (mm) after a similarity alignment of a onto b."""
+    A, B = a - a.mean(0), b - b.mean(0)
+    U, S, Vt = np.linalg.svd(B.T @ A)
+    D = np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))])
+    s = (S * np.diag(D)).sum() / (A ** 2).sum()
+    return np.linalg.norm(s * A @ (U @ D @ Vt).T - B, axis=1).mean()
+
+
+@pytest.fixture(scope="module")
+def face(sfm):
+    rng = np.random.default_rng(3)
+    alpha = rng.standard_normal(sfm.n_identity)
+    beta = np.array([0.0, 0.0, 0.0, 0.6, 0.0, 0.2])
+    return alpha, beta
+
+
+# --- building blocks --------------------------------------------------------------------
+def test_affine_pose_recovers_a_known_camera(sfm):
+    ids = sfm.landmark_ids[17:]
+    X = sfm.mean[ids[ids >= 0]][None].astype(float)
+    cam = Camera.looking_at_face(yaw=35, pitch=-10, roll=20)
+    y = cam.project(X[0])[None]
+    R, t, s = estimate_affine_pose(X, y, np.ones((1, len(X[0]))), np.array([[255.5, 255.5]]))
+    np.testing.assert_allclose(R[0], cam.rotation, atol=1e-6)
+    np.testing.assert_allclose(s[0], cam.scale, rtol=1e-6)
+    np.testing.assert_allclose(t[0, :2], cam.translation[:2], atol=1e-4)
+
+
+@pytest.mark.parametrize("perspective", [False, True])
+def test_projection_jacobian_matches_finite_differences(perspective):
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(2, 5, 3)) * 50
+    R = Camera.looking_at_face(yaw=20, pitch=10).rotation[None].repeat(2, 0)
+    t = np.array([[3.0, -2.0, -500.0]] * 2)
+    k = np.array([800.0, 900.0]) if perspective else np.array([1.5, 2.0])
+    c = np.array([[100.0, 120.0]] * 2)
+    uv, Xc, J, _ = project(X, R, t, k, c, perspective)
+    eps = 1e-6
+    for j in range(3):
+        dt = np.zeros(3)
+        dt[j] = eps
+        uv2, *_ = project(X, R, t + dt, k, c, perspective, jacobian=False)
+        np.testing.assert_allclose((uv2 - uv) / eps, J[..., j], atol=1e-4)
+
+
+# --- recovery -------------------------------------------------------------------------------
+@pytest.mark.parametrize("yaw", [-45, 0, 30])
+def test_affine_fit_recovers_pose_and_shape(sfm, face, yaw):
+    alpha, beta = face
+    lms, cam, verts = synth(sfm, yaw=yaw, pitch=10, roll=-5, identity=alpha, expression=beta)
+    res = fit_landmarks(sfm, lms, (512, 512))
+    assert res.landmark_rmse_px[0] < 3.0        # a regularised fit of a ~200 px face
+    np.testing.assert_allclose(res.euler_deg[0], [yaw, 10, -5], atol=4)
+    fitted = res.vertices(0)
+    assert fitted.shape == (sfm.n_vertices, 3) and np.isfinite(fitted).all()
+    # much closer to the truth than the mean face is
+    assert aligned_error(fitted, verts) < 0.6 * aligned_error(sfm.mean.astype(float), verts)
+    # the landmarks project where they were given
+    used = np.isfinite(res.fitted_landmarks[0, :, 0])
+    assert used.sum() >= 60
+    np.testing.assert_allclose(res.fitted_landmarks[0, 17:][used[17:]], lms[17:][used[17:]], atol=5)
+
+
+def test_perspective_fit_recovers_pose(sfm, face):
+    alpha, beta = face
+    lms, cam, verts = synth(sfm, yaw=25, pitch=-5, identity=alpha, expression=beta,
+                            kind="perspective", distance=400)
+    res = fit_landmarks(sfm, lms, (512, 512), camera="perspective", focal_px=cam.focal)
+    assert res.cameras[0].kind == "perspective"
+    assert res.landmark_rmse_px[0] < 1.5
+    np.testing.assert_allclose(res.euler_deg[0], [25, -5, 0], atol=4)
+    assert res.cameras[0].depth(res.vertices(0)).min() > 0
+
+
+def test_more_iterations_do_not_increase_the_cost(sfm, face):
+    alpha, beta = face
+    lms, _, _ = synth(sfm, yaw=20, identity=alpha, expression=beta)
+    lms = lms + np.random.default_rng(1).normal(size=lms.shape) * 2
+    costs = [fit_landmarks(sfm, lms, (512, 512), n_iterations=n).cost[0] for n in (0, 4)]
+    assert costs[1] <= costs[0] + 1e-9
+
+
+def test_expression_is_recovered(sfm):
+    beta = np.zeros(sfm.n_expression)
+    beta[sfm.expression_index("surprise")] = 1.0
+    lms, _, _ = synth(sfm, yaw=10, expression=beta)
+    res = fit_landmarks(sfm, lms, (512, 512))
+    assert int(np.argmax(res.expression[0])) == sfm.expression_index("surprise")
+    assert (res.expression >= 0).all()      # blendshape weights stay non-negative
+
+
+# --- masks and frames -------------------------------------------------------------------
+def test_missing_landmarks_by_nan_or_mask(sfm, face):
+    alpha, beta = face
+    lms, _, verts = synth(sfm, yaw=15, identity=alpha, expression=beta)
+    inner = lms.copy()
+    inner[:17] = np.nan
+    r1 = fit_landmarks(sfm, inner, (512, 512))
+    mask = np.ones(68, bool)
+    mask[:17] = False
+    r2 = fit_landmarks(sfm, lms, (512, 512), mask=mask)
+    np.testing.assert_allclose(r1.identity, r2.identity)
+    assert np.all(r1.landmark_vertices[0, :17] == -1)
+    one_eye = lms.copy()
+    one_eye[42:48] = np.nan
+    r3 = fit_landmarks(sfm, one_eye, (512, 512))
+    assert r3.landmark_rmse_px[0] < 3 and np.isfinite(r3.vertices(0)).all()
+
+
+def test_multi_frame_shares_identity(sfm, face):
+    alpha, _ = face
+    frames = [synth(sfm, yaw=y, identity=alpha, expression=b)
+              for y, b in ((-30, [0, 0, 0, 0.8, 0, 0]), (0, None), (40, [0, 0, 0, 0, 0, 0.7]))]
+    lms = np.stack([f[0] for f in frames])
+    res = fit_landmarks(sfm, lms, (512, 512))
+    assert res.n_frames == 3 and res.expression.shape == (3, sfm.n_expression)
+    np.testing.assert_allclose(res.frame_identity, res.identity[None].repeat(3, 0))
+    assert res.vertices().shape == (3, sfm.n_vertices, 3)
+    np.testing.assert_allclose(res.euler_deg[:, 0], [-30, 0, 40], atol=4)
+    assert res.expression[0, 3] > 0.4 and res.expression[2, 5] > 0.4
+    neutral = sfm.vertices(alpha)
+    single = fit_landmarks(sfm, lms[1], (512, 512)).neutral_vertices()
+    assert aligned_error(res.neutral_vertices(), neutral) < aligned_error(single, neutral)
+    json.dumps(res.to_dict(images=["a", "b", "c"]))
+
+
+def test_independent_frames_average_identity(sfm, face):
+    alpha, _ = face
+    lms = np.stack([synth(sfm, yaw=y, identity=alpha)[0] for y in (-20, 25)])
+    res = fit_landmarks(sfm, lms, [(512, 512), (512, 512)], shared_identity=False)
+    assert not np.allclose(res.frame_identity[0], res.frame_identity[1])
+    np.testing.assert_allclose(res.identity, res.frame_identity.mean(0))
+    np.testing.assert_allclose(res.neutral_vertices(), sfm.vertices(res.frame_identity).mean(0), atol=1e-9)
+    # a batch fit equals fitting every frame alone
+    alone = fit_landmarks(sfm, lms[1], (512, 512))
+    np.testing.assert_allclose(res.frame_identity[1], alone.identity, atol=1e-6)
+
+
+def test_ict_model(ict):
+    rng = np.random.default_rng(0)
+    alpha = rng.standard_normal(20)
+    lms, _, verts = synth(ict, yaw=25, identity=alpha)
+    res = fit_landmarks(ict, lms, (512, 512), n_identity=40)
+    assert res.landmark_rmse_px[0] < 2.0
+    np.testing.assert_allclose(res.euler_deg[0, 0], 25, atol=5)
+    assert res.vertices(0).shape == (ict.n_vertices, 3)
+
+
+# --- stability ---------------------------------------------------------------------------
+@pytest.mark.parametrize("yaw,pitch,roll", [(90, 0, 0), (-90, 0, 0), (0, 60, 0), (0, -60, 0),
+                                            (10, 0, 180), (0, 0, -150)])
+def test_extreme_poses_give_finite_fits(sfm, face, yaw, pitch, roll):
+    alpha, beta = face
+    lms, cam, verts = synth(sfm, yaw=yaw, pitch=pitch, roll=roll, identity=alpha, expression=beta)
+    if abs(yaw) == 90:
+        # profile: the landmarks of the hidden half are unusable
+        hidden = (cam.rotation @ np.array([1.0, 0, 0]))[2] * np.sign(yaw)
+        side = np.array([sfm.mean[i, 0] if i >= 0 else 0 for i in sfm.landmark_ids])
+        lms[(side * np.sign(yaw) > 5) | (np.arange(68) >= 9) & (np.arange(68) < 17) * (yaw > 0)
+            | (np.arange(68) < 8) * (yaw < 0)] = np.nan
+        assert hidden != 0
+    res = fit_landmarks(sfm, lms, (512, 512))
+    assert np.isfinite(res.vertices(0)).all() and np.isfinite(res.landmark_rmse_px).all()
+    assert res.landmark_rmse_px[0] < 8
+    R_err = np.degrees(np.arccos(np.clip((np.trace(res.cameras[0].rotation.T @ cam.rotation) - 1) / 2, -1, 1)))
+    assert R_err < 8
+
+
+def test_extreme_expression(sfm):
+    lms, _, _ = synth(sfm, yaw=20, expression=np.full(sfm.n_expression, 1.5))
+    res = fit_landmarks(sfm, lms, (512, 512))
+    assert np.isfinite(res.vertices(0)).all() and res.landmark_rmse_px[0] < 10
+    assert res.expression.mean() > 0.5      # the prior shrinks, but the expression is found
+
+
+@pytest.mark.parametrize("size,face_px", [((100000, 100000), 40000), ((64, 64), 20)])
+def test_huge_and_tiny_images(sfm, face, size, face_px):
+    alpha, _ = face
+    lms, cam, _ = synth(sfm, yaw=20, identity=alpha, size=size, face_px=face_px)
+    res = fit_landmarks(sfm, lms, size)
+    assert np.isfinite(res.vertices(0)).all()
+    assert res.landmark_rmse_px[0] < 0.01 * face_px + 0.5
+    np.testing.assert_allclose(res.cameras[0].scale, cam.scale, rtol=0.1)
+
+
+def test_float32_input_and_output(sfm, face):
+    alpha, _ = face
+    lms, _, _ = synth(sfm, yaw=20, identity=alpha)
+    r64 = fit_landmarks(sfm, lms, (512, 512))
+    r32 = fit_landmarks(sfm, lms.astype(np.float32), (512, 512), dtype=np.float32)
+    assert r32.vertices(0).dtype == np.float32
+    np.testing.assert_allclose(r32.vertices(0), r64.vertices(0), atol=0.05)
+
+
+def test_prior_weight_zero_stays_finite(sfm, face):
+    alpha, _ = face
+    lms, _, _ = synth(sfm, yaw=20, identity=alpha)
+    lms = lms + np.random.default_rng(0).normal(size=lms.shape)
+    res = fit_landmarks(sfm, lms, (512, 512), prior_weight=0.0, expression_weight=0.0)
+    assert np.isfinite(res.identity).all() and np.isfinite(res.vertices(0)).all()
+
+
+def test_robust_loss_resists_an_outlier(sfm, face):
+    alpha, _ = face
+    lms, cam, verts = synth(sfm, yaw=20, identity=alpha)
+    bad = lms.copy()
+    bad[30] += [120.0, -80.0]       # nose tip far off
+    plain = fit_landmarks(sfm, bad, (512, 512))
+    robust = fit_landmarks(sfm, bad, (512, 512), robust="huber")
+    assert aligned_error(robust.vertices(0), verts) < aligned_error(plain.vertices(0), verts)
+
+
+@pytest.mark.parametrize("case", ["one", "collinear", "coincident", "all_nan"])
+def test_degenerate_landmarks_raise_fit_error(sfm, case):
+    lms = np.full((68, 2), np.nan)
+    if case == "one":
+        lms[30] = [100, 100]
+    elif case == "collinear":
+        lms[17:] = np.stack([np.linspace(100, 400, 51), np.linspace(100, 400, 51) * 0.5 + 1e-9], -1)
+    elif case == "coincident":
+        lms[17:] = [200.0, 200.0]
+    with pytest.raises(FitError):
+        fit_landmarks(sfm, lms, (512, 512))
+
+
+@pytest.mark.parametrize("kwargs,landmarks", [
+    (dict(camera="fisheye"), None), (dict(prior_weight=-1), None), (dict(robust="cauchy"), None),
+    (dict(n_identity=1000), None), ({}, np.zeros((5, 2))), ({}, np.full((68, 2), np.inf)),
+    (dict(image_size=(0, 512)), None)])
+def test_bad_arguments_raise_input_error(sfm, kwargs, landmarks):
+    lms = synth(sfm, yaw=10)[0] if landmarks is None else landmarks
+    size = kwargs.pop("image_size", (512, 512))
+    with pytest.raises(InputError):
+        fit_landmarks(sfm, lms, size, **kwargs)
+
+
+# --- command line --------------------------------------------------------------------------
+def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir):
+    from morphable.cli import main
+
+    img = data_dir / "images" / "image_0010.png"
+    pts = data_dir / "images" / "image_0010.pts"
+    mesh, report = tmp_path / "fit.obj", tmp_path / "fit.json"
+    assert main(["fit", str(img), "--landmarks", str(pts), "--out-mesh", str(mesh),
+                 "--report", str(report)]) == 0
+    rep = json.loads(report.read_text())
+    frame = rep["frames"][0]
+    assert rep["model"] == "sfm" and 0 < frame["landmark_rmse_px"] < 10
+    assert -40 < frame["yaw_deg"] < -10 and "scale" in frame and len(rep["identity"]) == 63
+    assert set(frame["expression"]) == {"anger", "disgust", "fear", "happiness", "sadness", "surprise"}
+    text = mesh.read_text()
+    assert text.count("\nv ") >= 3448 and "\nvt " in text
+
+
+def test_cli_fit_bad_input_writes_nothing(tmp_path, data_dir, capsys):
+    from morphable.cli import main
+
+    img = data_dir / "images" / "image_0010.png"
+    bad_pts = tmp_path / "bad.pts"
+    bad_pts.write_text("version: 1\nn_points: 2\n{\n1 2\n3 4\n}\n")
+    out = tmp_path / "fit.obj"
+    assert main(["fit", str(img), "--landmarks", str(bad_pts), "--out-mesh", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.pts" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert main(["fit", str(tmp_path / "missing.png"), "--landmarks", str(bad_pts)]) == 2
+    assert "missing.png" in capsys.readouterr().err
+    assert not out.exists() and list(tmp_path.iterdir()) == [bad_pts]
