@@ -15,6 +15,8 @@ run). Columns:
 - torch fwd / fwd+bwd: the differentiable ``normal_map`` (float32, visibility fixed) and its
   backward pass to the vertices: one gradient step of a fit that keeps the visibility.
 - step: a gradient step that also recomputes the visibility for the new vertices.
+- CPU: process CPU time (all threads) of the column before it; on a machine shared with other
+  jobs it estimates the wall time the call would take alone (Embree's threads add up).
 """
 from __future__ import annotations
 
@@ -28,14 +30,19 @@ import numpy as np
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def _median_ms(fn, repeat):
+def _median_ms(fn, repeat, cpu=False):
+    """Median wall time in ms; with ``cpu=True`` also the median CPU time of this process
+    (all its threads), which other processes on a shared machine do not inflate."""
     fn()
-    times = []
+    wall, proc = [], []
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(times)
+        wall.append(time.perf_counter() - t)
+        proc.append(time.process_time() - c)
+    if cpu:
+        return 1e3 * statistics.median(wall), 1e3 * statistics.median(proc)
+    return 1e3 * statistics.median(wall)
 
 
 def meshes():
@@ -68,7 +75,8 @@ def bench(repeat=7, sizes=(256, 512), trimesh_size=256, threads=1, trimesh_numpy
             jitter = [v + rng.normal(scale=1e-3, size=v.shape) for _ in range(repeat + 1)]
             it = iter(jitter)
             r["+rebuild"] = _median_ms(lambda: visibility(next(it), t, cam), repeat)
-            r["bake numpy"] = _median_ms(lambda: normal_map(v, t, cam), repeat)
+            r["bake numpy"], r["bake CPU"] = _median_ms(lambda: normal_map(v, t, cam), repeat,
+                                                        cpu=True)
             vt = torch.tensor(v, dtype=torch.float32, requires_grad=True)
             tt = torch.as_tensor(t)
             target = torch.zeros(size, size, 3)
@@ -83,7 +91,7 @@ def bench(repeat=7, sizes=(256, 512), trimesh_size=256, threads=1, trimesh_numpy
                 loss.backward()
 
             r["torch fwd"] = _median_ms(forward, repeat)
-            r["torch fwd+bwd"] = _median_ms(step, repeat)
+            r["torch fwd+bwd"], r["fwd+bwd CPU"] = _median_ms(step, repeat, cpu=True)
             it = iter(jitter)
 
             def full_step():
@@ -97,6 +105,7 @@ def bench(repeat=7, sizes=(256, 512), trimesh_size=256, threads=1, trimesh_numpy
             if size == trimesh_size:
                 r.update(compare_trimesh(v, t, cam, vis, repeat=max(1, repeat // 3),
                                          numpy_backend=trimesh_numpy))
+                r.update(compare_zbuffer(v, t, cam, vis, repeat))
             rows.append(r)
     return rows
 
@@ -123,6 +132,47 @@ def _trimesh_backends(numpy_backend=False):
     return out
 
 
+def numpy_zbuffer(v, t, cam):
+    """A vectorised numpy z-buffer rasteriser for perspective cameras (the hand-written
+    alternative to ray casting,
+    kept here only as a peer): every triangle's bounding-box pixels, edge functions,
+    perspective-correct depth, ``np.minimum.at`` depth test -> (H, W) triangle ids."""
+    W, H = cam.image_size
+    p, d = cam.project(v), cam.depth(v)
+    P = p[t]
+    lo = np.clip(np.ceil(P.min(1)), 0, [W, H]).astype(np.int64)
+    hi = np.clip(np.floor(P.max(1)), -1, [W - 1, H - 1]).astype(np.int64)
+    n = np.maximum(hi - lo + 1, 0)
+    cnt = n[:, 0] * n[:, 1]
+    tri = np.repeat(np.arange(len(t)), cnt)
+    k = np.arange(len(tri)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    px = lo[tri, 0] + k % n[tri, 0]
+    py = lo[tri, 1] + k // n[tri, 0]
+    a, b, c = P[tri, 0], P[tri, 1], P[tri, 2]
+
+    def edge(p0, p1):
+        return (p1[:, 0] - p0[:, 0]) * (py - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (px - p0[:, 0])
+
+    w = np.stack([edge(b, c), edge(c, a), edge(a, b)], 1)
+    area = w.sum(1)
+    ok = (((w >= 0).all(1)) | ((w <= 0).all(1))) & (area != 0)
+    tri, px, py, w, area = tri[ok], px[ok], py[ok], w[ok], area[ok]
+    depth = 1.0 / (w / area[:, None] / d[t[tri]]).sum(1)
+    key = py * W + px
+    zbuf = np.full(W * H, np.inf)
+    np.minimum.at(zbuf, key, depth)
+    win = depth <= zbuf[key]
+    tid = np.full(W * H, -1)
+    tid[key[win]] = tri[win]
+    return tid.reshape(H, W)
+
+
+def compare_zbuffer(v, t, cam, vis, repeat):
+    ms = _median_ms(lambda: numpy_zbuffer(v, t, cam), repeat)
+    same = float((numpy_zbuffer(v, t, cam) == vis.triangle_id).mean())
+    return {"zbuffer ms": ms, "zbuffer same": same}
+
+
 def compare_trimesh(v, t, cam, vis, repeat=2, numpy_backend=False):
     """The same rays through trimesh's first-hit queries: time and agreement per backend."""
     import trimesh
@@ -147,8 +197,8 @@ def compare_trimesh(v, t, cam, vis, repeat=2, numpy_backend=False):
     return {"trimesh": found, "open3d ms": ours, "open3d new ms": ours_new}
 
 
-COLUMNS = ["mesh", "vertices", "size", "visibility", "+rebuild", "bake numpy", "torch fwd",
-           "torch fwd+bwd", "step"]
+COLUMNS = ["mesh", "vertices", "size", "visibility", "+rebuild", "bake numpy", "bake CPU",
+           "torch fwd", "torch fwd+bwd", "fwd+bwd CPU", "step"]
 
 
 def table(rows) -> str:
@@ -175,6 +225,14 @@ def table(rows) -> str:
             body += (f"| {r['mesh']} | {r['size']}² | {backend} | {c['ms']:.1f} | {a:.1f} | "
                      f"{c['ms'] / a:.1f}x | {c['ms new']:.1f} | {b:.1f} | {c['ms new'] / b:.1f}x | "
                      f"{100 * c['same']:.2f}% |\n")
+    zb = [r for r in rows if "zbuffer ms" in r]
+    if zb:
+        body += ("\nRay casting against a hand-written vectorised numpy z-buffer rasteriser "
+                 "(`numpy_zbuffer` here):\n\n| mesh | size | numpy z-buffer ms | "
+                 "morphable visibility ms | ratio | same triangle |\n|---|---|---|---|---|---|\n")
+    for r in zb:
+        body += (f"| {r['mesh']} | {r['size']}² | {r['zbuffer ms']:.1f} | {r['visibility']:.1f} "
+                 f"| {r['zbuffer ms'] / r['visibility']:.1f}x | {100 * r['zbuffer same']:.2f}% |\n")
     return head + body
 
 
