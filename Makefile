@@ -31,7 +31,9 @@ demo: $(STAMP)
 	mkdir -p $(OUT)
 	$(BIN)/morphable sample --model sfm --identity-std 1 --expression happiness=0.8 --out $(OUT)/sample.obj
 	$(BIN)/morphable info --model sfm --json > $(OUT)/model.json
-	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json"
+	$(BIN)/morphable fit $(DATA)/images/image_0010.png --landmarks $(DATA)/images/image_0010.pts \
+		--model sfm --out-mesh $(OUT)/fit.obj --report $(OUT)/fit.json
+	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json $(OUT)/fit.obj $(OUT)/fit.json"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

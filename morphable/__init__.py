@@ -14,4 +14,16 @@ from .normals import face_normals, vertex_normals
 __version__ = "0.1.0"
 
 __all__ = ["MorphableModel", "load_model", "find_model", "download", "DEFAULT_MODEL",
-           "vertex_normals", "face_normals", "MorphableError", "InputError", "FitError"]
+           "vertex_normals", "face_normals", "MorphableError", "InputError", "FitError",
+           "fit_landmarks", "FitResult"]
+
+_LAZY = {"fit_landmarks": "fitting", "FitResult": "fitting"}
+
+
+def __getattr__(name):
+    # heavier subpackages load on first use, so that ``import morphable`` stays numpy-only
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
