@@ -133,10 +133,10 @@ def _trimesh_backends(numpy_backend=False):
 
 
 def numpy_zbuffer(v, t, cam):
-    """A vectorised numpy z-buffer rasteriser for perspective cameras (the hand-written
-    alternative to ray casting,
-    kept here only as a peer): every triangle's bounding-box pixels, edge functions,
-    perspective-correct depth, ``np.minimum.at`` depth test -> (H, W) triangle ids."""
+    """A vectorised numpy z-buffer rasteriser for perspective cameras, the hand-written
+    alternative to ray casting kept here only as a peer: every triangle's bounding-box
+    pixels, edge functions, perspective-correct depth, ``np.minimum.at`` depth test
+    -> (H, W) triangle ids."""
     W, H = cam.image_size
     p, d = cam.project(v), cam.depth(v)
     P = p[t]
