@@ -197,6 +197,8 @@ def test_degenerate_inputs_raise_input_error():
         visibility(SQUARE, SQUARE_T, Camera.looking_at_face((0, 0)))
     with pytest.raises(InputError, match="supersample"):
         visibility(SQUARE, SQUARE_T, cam, supersample=0)
+    with pytest.raises(InputError, match="samples"):
+        visibility(SQUARE, SQUARE_T, Camera.looking_at_face((40000, 40000)), supersample=1)
     with pytest.raises(InputError, match="out of range"):
         visibility(SQUARE, SQUARE_T + 2, cam)
     with pytest.raises(InputError, match="size"):

@@ -41,7 +41,7 @@ def _resolve(vis, n):
         mask, s = vis.mask, vis
     if s.supersample == 1:
         return _normalize(n, mask)
-    cover = s.downsample(mask.astype(np.float64))
+    cover = s.downsample(mask[..., None].astype(np.float64))[..., 0]
     return _normalize(s.downsample(n), cover >= 0.5)
 
 
@@ -120,7 +120,7 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
         tri = torch.as_tensor(np.asarray(triangles, dtype=np.int64), device=vertices.device)
     else:
         vertices, tri = check_mesh(vertices, triangles)
-    if not torch_in and first.supersample == 1:
+    if not torch_in and first.supersample == 1 and rotation is None:
         # fast path: interpolate and normalise the foreground samples only
         n = vertex_normals(vertices, tri, weighting=weighting)
         if frame == "camera":

@@ -34,6 +34,7 @@ _SCENES: "OrderedDict[bytes, object]" = OrderedDict()
 _SCENE_CACHE_SIZE = 4
 _UV_TABLES: "OrderedDict[bytes, Visibility]" = OrderedDict()
 _UV_CACHE_SIZE = 8
+_MAX_SAMPLES = 1 << 27  # 134 M samples: about 10 GB of rays and results
 _LOCK = threading.Lock()  # the caches are shared by threads (batch engines, data loaders)
 
 
@@ -334,6 +335,9 @@ def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
         raise InputError(f"supersample must be an integer >= 1, got {supersample!r}")
     W, H = camera.image_size
     Ws, Hs = W * s, H * s
+    if Ws * Hs > _MAX_SAMPLES:
+        raise InputError(f"{W}x{H} pixels with supersample {s} are {Ws * Hs} samples, more than "
+                         f"the {_MAX_SAMPLES} this rasteriser takes at once")
     pc = camera.to_camera(v.astype(np.float64, copy=False))
     if (pc[:, 2] >= 0).all():
         raise InputError("mesh is entirely behind the camera (depth <= 0 for every vertex); "
@@ -385,8 +389,9 @@ def uv_visibility(triangles, uv, triangle_uv=None, size: int = 256) -> Visibilit
         size = int(size)
     except (TypeError, ValueError):
         raise InputError(f"UV map size must be a positive integer, got {size!r}") from None
-    if size < 1:
-        raise InputError(f"UV map size must be a positive integer, got {size}")
+    if size < 1 or size * size > _MAX_SAMPLES:
+        raise InputError(f"UV map size must be a positive integer up to "
+                         f"{int(_MAX_SAMPLES ** 0.5)}, got {size}")
     if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0:
         raise InputError(f"triangles must be a non-empty (F, 3) array, got {t.shape}")
     if uv.ndim != 2 or uv.shape[1] != 2 or not np.isfinite(uv).all():
