@@ -7,8 +7,9 @@ torch = pytest.importorskip("torch")
 
 from morphable.camera import Camera  # noqa: E402
 from morphable.errors import InputError  # noqa: E402
-from morphable.raster import (interpolate, normal_map, render, sample_texture, sh_from_lights,  # noqa: E402
-                              DirectionalLight, shade_sh_torch, uv_normal_map, visibility)
+from morphable.raster import (DirectionalLight, interpolate, normal_map, render,  # noqa: E402
+                              sample_texture, sh_from_lights, shade_directional, shade_sh_torch,
+                              uv_normal_map, visibility)
 
 
 def bumpy_patch(n=5):
@@ -106,6 +107,11 @@ def test_gradcheck_shading_and_texture():
     assert torch.autograd.gradcheck(shade_sh_torch, (n, albedo, sh))
     sh1 = torch.randn(9, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(shade_sh_torch, (n, albedo, sh1))
+    lights = [DirectionalLight((0.3, 0.2, 1), 0.7), DirectionalLight((-1, 0, 0.5), (0.2, 0.3, 0.4))]
+    assert torch.autograd.gradcheck(lambda a, b: shade_directional(a, b, lights, 0.2), (n, albedo))
+    np.testing.assert_allclose(shade_directional(n, albedo, lights, 0.2).detach().numpy(),
+                               shade_directional(n.detach().numpy(), albedo.detach().numpy(),
+                                                 lights, 0.2), atol=1e-12)
     tex = torch.rand(5, 6, 3, dtype=torch.float64, requires_grad=True)
     uv = (torch.rand(7, 2, dtype=torch.float64) * 0.8 + 0.1).requires_grad_(True)
     assert torch.autograd.gradcheck(sample_texture, (tex, uv))

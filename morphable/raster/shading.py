@@ -144,7 +144,7 @@ def shade_directional(normals, albedo, lights, ambient=0.0, visible=None):
         import torch
 
         def as_t(a):
-            return torch.as_tensor(np.asarray(a), dtype=normals.dtype, device=normals.device)
+            return torch.as_tensor(np.array(a), dtype=normals.dtype, device=normals.device)
     else:
         def as_t(a):
             return np.asarray(a, dtype=normals.dtype)
