@@ -107,6 +107,8 @@ def test_render_textured_scan_and_model(tmp_path, data_dir):
     (("render", "--light", "a,b,c", "--out", "x.png"), "expected numbers"),
     (("render", "--texture", "none.png", "--out", "x.png"), "none.png: no such texture file"),
     (("render", "--supersample", "0", "--out", "x.png"), "--supersample must be >= 1"),
+    (("render", "--background", "bg.png", "--out", "x.png"), "bg.png: no such background image"),
+    (("render", "--size", "64", "--background", "0,0", "--out", "x.png"), "expected 3 numbers"),
 ])
 def test_errors_are_one_line_without_output(tmp_path, args, message):
     out = run(*args, cwd=tmp_path)

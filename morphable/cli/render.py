@@ -67,7 +67,10 @@ def run(args):
     else:
         light = None
     bg = args.background
-    if not Path(bg).is_file():
+    if Path(bg).suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".tif", ".tiff"):
+        if not Path(bg).is_file():
+            raise InputError(f"{bg}: no such background image")
+    elif not Path(bg).is_file():
         bg = _numbers(bg, (3,), "--background")
     image = render(mesh.vertices, mesh.triangles, cam, colors=np.array(color), texture=texture,
                    light=light, ambient=args.ambient, background=bg, shadows=args.shadows,

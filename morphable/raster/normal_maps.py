@@ -80,9 +80,9 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
         per pixel and renormalised; pixels less than half covered are background.
     weighting : {"area", "angle"}
         Vertex normal weighting.
-    rotation : torch tensor (3, 3) or (B, 3, 3), optional
-        World -> camera rotation to use instead of ``camera.rotation`` (torch path): pass
-        the differentiable pose to get gradients with respect to it.
+    rotation : (3, 3) or (B, 3, 3) array or torch tensor, optional
+        World -> camera rotation to use instead of the visibility's camera rotation; on the
+        torch path pass the differentiable pose to get gradients with respect to it.
 
     Returns
     -------

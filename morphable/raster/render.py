@@ -40,9 +40,13 @@ def _background(background, vis, like):
     """(Hs, Ws, 3) background samples, numpy float."""
     Hs, Ws = vis.shape
     s = vis.supersample
-    b = np.asarray(background) if not isinstance(background, (str, bytes)) else None
+    path_like = isinstance(background, (str, bytes)) or hasattr(background, "__fspath__")
+    b = None if path_like else np.asarray(background)
     if b is not None and b.ndim <= 1:
-        b = np.broadcast_to(np.asarray(b, dtype=np.float64).reshape(-1), (3,))
+        try:
+            b = np.asarray(b, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(f"background must be a colour or an image, got {background!r}") from None
         if b.size != 3 or not np.isfinite(b).all():
             raise InputError(f"background colour must be 3 numbers in [0, 1], got {background}")
         return np.broadcast_to(b.astype(like), (Hs, Ws, 3))
