@@ -54,6 +54,8 @@ class _Problem:
         self.N = y.shape[0]
         self.A = np.ascontiguousarray(bank.identity[:, :, :K])
         self.B = np.ascontiguousarray(bank.expression[:, :, :E])
+        self.AT = np.ascontiguousarray(self.A.transpose(1, 0, 2))     # (3, R, K)
+        self.BT = np.ascontiguousarray(self.B.transpose(1, 0, 2))
         self.sliding = np.array(sorted(int(j) for lms, _ in bank.polylines for j in lms), dtype=np.int64)
 
 
@@ -75,27 +77,35 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     c = st.corr
     if sliding_only and st.rows is not None:
         if pb.sliding.size:
-            for src, dst in zip((pb.bank.mean, pb.A, pb.B), st.rows):
-                c.gather_static(src, pb.sliding, dst)
+            c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
+            for src, dst in zip((pb.AT, pb.BT), st.rows[1:]):
+                for k in range(3):
+                    c.gather_static(src[k], pb.sliding, dst[:, k])
         return
-    st.rows = (c.gather_static(pb.bank.mean), c.gather_static(pb.A), c.gather_static(pb.B))
+    # identity and expression rows coordinate-major, (N, 3, 68, k): projections are one GEMM
+    rows = [c.gather_static(pb.bank.mean)]
+    for src in (pb.AT, pb.BT):
+        out = np.empty((pb.N, 3, 68, src.shape[-1]))
+        for k in range(3):
+            out[:, k] = c.gather_static(src[k])
+        rows.append(out)
+    st.rows = tuple(rows)
 
 
 def _combine(rows, coeffs):
-    """rows (N, L, 3, k) times coefficients (N, k) -> (N, L, 3)."""
-    N, L, _, k = rows.shape
-    return (rows.reshape(N, L * 3, k) @ coeffs[..., None]).reshape(N, L, 3)
+    """Coordinate-major rows (N, 3, L, k) times coefficients (N, k) -> (N, L, 3)."""
+    N, _, L, k = rows.shape
+    return (rows.reshape(N, 3 * L, k) @ coeffs[..., None]).reshape(N, 3, L).transpose(0, 2, 1)
 
 
 def _points(pb: _Problem, st: _State):
     """(N, 68, 3) model points of the correspondences, mm."""
     m, A, B = st.rows
-    N = pb.N
     X = m
     if pb.K:
-        X = X + (A.reshape(N, 68 * 3, pb.K) @ np.broadcast_to(st.alpha, (N, pb.K))[..., None]).reshape(N, 68, 3)
+        X = X + _combine(A, np.broadcast_to(st.alpha, (pb.N, pb.K)))
     if pb.E:
-        X = X + (B.reshape(N, 68 * 3, pb.E) @ st.beta[..., None]).reshape(N, 68, 3)
+        X = X + _combine(B, st.beta)
     return X
 
 
@@ -228,18 +238,20 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         X, uv, Xc, Jp, depth, r = _residuals(pb, st, True)
         W = _robust(pb, _weights(pb, st, depth), r)
         cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
+        # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
         RX = Xc - st.t[:, None]
         blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
         if n_rho:
             blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
+        blocks = [np.concatenate(blocks, -1).transpose(0, 2, 1, 3)]
         # the affine Jacobian is the same for every point: one GEMM per frame
         JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
         if E:
             blocks.append(project_rows(JpR, st.rows[2]))
         Jf = np.concatenate(blocks, -1).reshape(N, 136, Pf)
-        Ja = np.ascontiguousarray(project_rows(JpR, st.rows[1])).reshape(N, 136, K)
-        w2 = np.repeat(W, 2, axis=1)[..., None]
-        rr = r.reshape(N, 136)
+        Ja = project_rows(JpR, st.rows[1]).reshape(N, 136, K)
+        w2 = np.concatenate([W, W], 1)[..., None]
+        rr = r.transpose(0, 2, 1).reshape(N, 136)
         WJf, WJa = w2 * Jf, w2 * Ja
         Hff = Jf.transpose(0, 2, 1) @ WJf
         gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
@@ -261,13 +273,13 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
         if pb.shared:
             Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
-        Haa = Haa + pb.prior_weight * np.eye(K)
+        Haa[:, np.arange(K), np.arange(K)] += pb.prior_weight
         ga = ga + pb.prior_weight * st.alpha
         accepted = np.zeros(G, bool)
-        for _ in range(4):          # retry rejected groups with more damping
+        for attempt in range(4):          # retry rejected groups with more damping
             # independent frames: re-solve only the ones still rejected
-            sel = np.arange(N) if pb.shared else np.flatnonzero(~accepted)
-            gs = np.arange(G) if pb.shared else sel
+            sel = slice(None) if pb.shared or not attempt else np.flatnonzero(~accepted)
+            gs = slice(None) if pb.shared else sel
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
             Hd = Hs + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
@@ -284,9 +296,10 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
             else:
                 df[sel] = -x2
             new = _apply(pb, st, df, da, n_t, n_rho)
-            cost1 = _group_cost(pb, new, _data_cost(pb, new, W))
+            cost1 = np.full(G, np.inf)
+            cost1[gs] = _subset_cost(pb, new, W, sel)
             ok = np.isfinite(cost1) & (cost1 <= cost0) & ~accepted
-            gain = np.where(ok, cost0 - cost1, gain if _ else 0.0)
+            gain = np.where(ok, cost0 - cost1, gain if attempt else 0.0)
             if ok.any():
                 st = _merge(pb, st, new, ok[gidx], ok)
                 accepted |= ok
@@ -300,6 +313,31 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         if np.all(gain <= 1e-6 * np.maximum(cost0, 1e-12)):
             break           # converged
     return st, iters
+
+
+def _subset_cost(pb, st, W, sel):
+    """Group costs of the frames ``sel`` (all frames for a shared identity)."""
+    m, A, B = (r[sel] for r in st.rows)
+    n = m.shape[0]
+    alpha = st.alpha if pb.shared else st.alpha[sel]
+    X = m
+    if pb.K:
+        X = X + _combine(A, np.broadcast_to(alpha, (n, pb.K)))
+    if pb.E:
+        X = X + _combine(B, st.beta[sel])
+    uv, _, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel], pb.perspective, False)
+    r = uv - pb.y[sel]
+    w = W[sel]
+    c = (w * (r * r).sum(-1)).sum(1)
+    if pb.perspective:
+        c = np.where(((w > 0) & (depth <= 1e-3)).any(1), np.inf, c)
+    if pb.E:
+        c = c + pb.expression_weight * (st.beta[sel] ** 2).sum(1)
+    if pb.shared:
+        c = c.sum(0, keepdims=True)
+    if pb.K:
+        c = c + pb.prior_weight * (alpha ** 2).sum(1)
+    return c
 
 
 def _gsum(pb, x):

@@ -14,13 +14,17 @@ __all__ = ["solve_identity", "solve_expression", "ridge_solve", "project_rows"]
 
 
 def project_rows(P, rows):
-    """``P @ rows`` per point: P (N, 2, 3) shared by the points or (N, L, 2, 3), rows
-    (N, L, 3, k) -> (N, L, 2, k). The shared case is one GEMM per frame."""
+    """``P @ rows`` per point in coordinate-major layout: P (N, 2, 3) shared by the points or
+    (N, L, 2, 3), rows (N, 3, L, k) -> (N, 2, L, k). The shared case is one GEMM per frame."""
+    N, _, L, k = rows.shape
     if P.ndim == 3:
-        N, L, _, k = rows.shape
-        flat = rows.transpose(0, 2, 1, 3).reshape(N, 3, L * k)
-        return (P @ flat).reshape(N, 2, L, k).transpose(0, 2, 1, 3)
-    return P @ rows
+        return (P @ rows.reshape(N, 3, L * k)).reshape(N, 2, L, k)
+    out = np.empty((N, 2, L, k))
+    for c in range(2):
+        out[:, c] = P[:, :, c, 0, None] * rows[:, 0]
+        for j in (1, 2):
+            out[:, c] += P[:, :, c, j, None] * rows[:, j]
+    return out
 
 
 def ridge_solve(H, g, prior):
@@ -37,9 +41,9 @@ def ridge_solve(H, g, prior):
 def _normal(P, W, basis, residual):
     """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k)."""
     N, L = W.shape
-    Phi = np.ascontiguousarray(project_rows(P, basis)).reshape(N, 2 * L, -1)     # (N, 2L, k)
-    WPhiT = (np.repeat(W, 2, axis=1)[..., None] * Phi).transpose(0, 2, 1)
-    return WPhiT @ Phi, (WPhiT @ residual.reshape(N, 2 * L, 1))[..., 0]
+    Phi = project_rows(P, basis).reshape(N, 2 * L, -1)          # (N, 2L, k), x rows then y rows
+    WPhiT = (np.concatenate([W, W], 1)[..., None] * Phi).transpose(0, 2, 1)
+    return WPhiT @ Phi, (WPhiT @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
 
 
 def solve_identity(P, target, W, A, prior, shared: bool):
@@ -48,7 +52,8 @@ def solve_identity(P, target, W, A, prior, shared: bool):
     Parameters
     ----------
     P : (N, L, 2, 3) projection of each point, or (N, 2, 3) shared by all points; target : (N, L, 2) px, the image point minus
-    everything but the identity term; W : (N, L) weights (1/px^2); A : (N, L, 3, K) identity rows
+    everything but the identity term; W : (N, L) weights (1/px^2); A : (N, 3, L, K) identity rows
+    (coordinate-major)
     prior : float, weight of ``|alpha|^2``; shared : one identity for all frames
 
     Returns
