@@ -231,6 +231,9 @@ def run_batch(items, out_dir, work, options: dict | None = None, workers: int = 
     out = Path(out_dir)
     (out / "items").mkdir(parents=True, exist_ok=True)
     done = read_results(out)
+    for stale in (out / "items").glob(".*"):
+        # temporary folders of a killed run: their items are not in the log and run again
+        shutil.rmtree(stale, ignore_errors=True)
     todo = [it for it in items if it.id not in done]
     counts = {"done": 0, "skipped": len(items) - len(todo), "ok": 0, "error": 0}
     options = options or {}

@@ -1,0 +1,68 @@
+"""``morphable fit-batch``: fit many images (or subjects of several images), resumably.
+
+Each item gets ``OUT/items/<id>/fit.obj`` and ``fit.json``, and a line in the append-only
+``OUT/results.jsonl``; a re-run skips the recorded items, so a killed run resumes where it
+stopped. A failed item is recorded with its error and the batch goes on (exit status 1 when
+some item failed, 0 when all succeeded). Runs in this process, a local process pool
+(``--workers N``) or on Dask (``--scheduler local`` for a LocalCluster, or ``tcp://host:port``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from .common import add_model_argument
+
+
+def add_parser(sub):
+    p = sub.add_parser("fit-batch", help="fit a folder, glob or CSV/JSONL manifest of images, resumably")
+    p.add_argument("input", metavar="INPUT",
+                   help="folder of images (sibling .pts/.ljson used), a glob, or a .csv/.jsonl "
+                        "manifest with columns image, landmarks, subject (rows of one subject "
+                        "are fitted together)")
+    p.add_argument("--out", required=True, help="output folder (items/<id>/fit.obj, fit.json, results.jsonl)")
+    add_model_argument(p)
+    p.add_argument("--workers", type=int, default=1, help="parallel processes or Dask workers (default 1)")
+    p.add_argument("--scheduler", help="'local' (a Dask LocalCluster) or a Dask scheduler tcp://host:port")
+    p.add_argument("--camera", choices=("affine", "perspective"), default="affine")
+    p.add_argument("--focal", type=float, default=None, help="focal length in px (perspective; default max(W, H))")
+    p.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
+    p.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    p.add_argument("--independent", action="store_true",
+                   help="fit the frames of a subject each on their own")
+    p.add_argument("--detector", choices=("hog", "cnn"), default="hog",
+                   help="dlib face detector for images without landmark files")
+    p.add_argument("--mesh-format", choices=("obj", "ply", "stl"), default="obj")
+    return p
+
+
+def run(args):
+    from ..batch import read_manifest, run_batch
+    from ..fitting.files import fit_item
+    from ..io.registry import load_model
+
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    if args.iterations < 0:
+        raise InputError(f"--iterations must be >= 0, got {args.iterations}")
+    if args.focal is not None and not args.focal > 0:
+        raise InputError(f"--focal must be positive, got {args.focal}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if not out.exists() and not out.parent.resolve().is_dir():
+        raise InputError(f"{out}: parent folder {out.parent} does not exist")
+    items = read_manifest(args.input)
+    load_model(args.model)  # an unknown model fails here, once, not in every item
+    options = {"model": args.model, "camera": args.camera, "focal_px": args.focal,
+               "iterations": args.iterations, "robust": args.robust,
+               "independent": args.independent, "detector": args.detector,
+               "mesh_format": args.mesh_format}
+    try:
+        counts = run_batch(items, out, fit_item, options, workers=args.workers,
+                           scheduler=args.scheduler, progress=not args.quiet)
+    except PermissionError as e:
+        raise InputError(f"{out}: cannot write ({e.strerror})") from None
+    print(f"{len(items)} items: {counts['ok']} fitted, {counts['error']} failed, "
+          f"{counts['skipped']} already done; results in {out / 'results.jsonl'}")
+    return 1 if counts["error"] else 0

@@ -1,0 +1,204 @@
+"""Fitting from files: images and landmark files in, a mesh and a JSON report out.
+
+The steps of ``morphable fit`` and of each item of ``morphable fit-batch``, usable alone:
+
+- :func:`image_size` reads only an image's header (no decoding, so a huge image costs nothing);
+- :func:`read_landmark_file` reads iBUG ``.pts`` or menpo ``.ljson`` 68-point files and checks
+  them against the image;
+- :func:`fit_files` fits (detecting landmarks with dlib where no file is given);
+- :func:`write_fit` writes the mesh and the report atomically, only after the fit succeeded;
+- :func:`fit_item` is the work function of :func:`morphable.batch.run_batch`.
+
+Every problem with an input is an :class:`~morphable.errors.InputError` naming the file.
+
+>>> from morphable.fitting.files import fit_files, write_fit          # doctest: +SKIP
+>>> res, report = fit_files(["image_0010.png"], ["image_0010.pts"])   # doctest: +SKIP
+>>> write_fit(res, report, mesh="fit.obj", report_path="fit.json")    # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["image_size", "read_landmark_file", "fit_files", "write_fit", "fit_item",
+           "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
+
+MAX_DETECT_MEGAPIXELS = 40.0
+"""Largest image (in millions of pixels) handed to the face detector: dlib's HOG pyramid on a
+larger image takes minutes and gigabytes; such images need ``--landmarks`` or downscaling."""
+
+OUTSIDE_MARGIN = 0.1
+"""Landmarks may lie outside the image by this fraction of its width/height (faces cut by the
+border are annotated that way); further out, the file does not belong to the image."""
+
+
+def image_size(path) -> tuple[int, int]:
+    """(W, H) pixels of an image file, from its header only.
+
+    Raises InputError naming the file when it is missing, unreadable or not an image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            W, H = im.size
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such image") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not an image") from None
+    except Image.DecompressionBombError as e:
+        raise InputError(f"{path}: image too large ({e})") from None
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as e:
+        raise InputError(f"{path}: cannot read image ({e})") from None
+    if W <= 0 or H <= 0:
+        raise InputError(f"{path}: image has no pixels ({W}x{H})")
+    return int(W), int(H)
+
+
+def read_landmark_file(path, size=None) -> np.ndarray:
+    """68 iBUG landmarks from a ``.pts`` or ``.ljson`` file, checked against an image size.
+
+    Parameters
+    ----------
+    path : .pts (1-based pixels) or .ljson (menpo, 68 points in iBUG order or labelled)
+    size : (W, H) pixels, optional; landmarks further than ``OUTSIDE_MARGIN`` outside are refused
+
+    Returns
+    -------
+    (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
+    """
+    from ..io.landmarks import read_ljson, read_pts
+    from ..landmarks import _MENPO, from_menpo_labels
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such landmark file")
+    if path.suffix.lower() == ".ljson":
+        pts, labels = read_ljson(path)
+        if pts.shape[1] != 2:
+            raise InputError(f"{path}: expected 2D landmarks, got {pts.shape[1]}D points")
+        if len(pts) == 68 and labels and set(labels) <= set(_MENPO):
+            pts = from_menpo_labels(pts, labels, str(path))
+    else:
+        pts = read_pts(path)
+    if pts.shape != (68, 2):
+        raise InputError(f"{path}: expected 68 iBUG landmarks, got {len(pts)}")
+    if size is not None:
+        W, H = size
+        lo = -0.5 - OUTSIDE_MARGIN * np.array([W, H])
+        hi = np.array([W, H]) - 0.5 + OUTSIDE_MARGIN * np.array([W, H])
+        with np.errstate(invalid="ignore"):
+            out = np.flatnonzero(((pts < lo) | (pts > hi)).any(1))
+        if out.size:
+            i = int(out[0])
+            raise InputError(f"{path}: landmark {i + 1} at ({pts[i, 0]:.1f}, {pts[i, 1]:.1f}) px "
+                             f"is outside the {W}x{H} image")
+    return pts
+
+
+def _detect(path, size, detector: str):
+    from .detect import detect_landmarks
+
+    mp = size[0] * size[1] / 1e6
+    if mp > MAX_DETECT_MEGAPIXELS:
+        raise InputError(f"{path}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
+                         f"{MAX_DETECT_MEGAPIXELS:.0f} face detection takes; downscale it or give landmarks")
+    return detect_landmarks(path, detector=detector)
+
+
+def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
+              n_iterations: int = 4, robust: bool = False, shared_identity: bool = True,
+              detector: str = "hog"):
+    """Fit a model to one or more images of a person, from landmark files or dlib detection.
+
+    Parameters
+    ----------
+    images : list of paths
+    landmarks : list of paths or None (one per image; a None entry is detected)
+    model : MorphableModel or name/path for ``load_model``
+    camera, focal_px, n_iterations : see :func:`morphable.fitting.fit_landmarks`
+    robust : bool, Huber loss
+    shared_identity : bool, one identity for all images (False: independent fits)
+    detector : "hog" or "cnn" (dlib)
+
+    Returns
+    -------
+    (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
+    """
+    from . import fit_landmarks
+
+    images = [Path(p) for p in images]
+    if not images:
+        raise InputError("no images given")
+    landmarks = list(landmarks) if landmarks else [None] * len(images)
+    if len(landmarks) != len(images):
+        raise InputError(f"landmarks: {len(landmarks)} files for {len(images)} images")
+    if int(n_iterations) < 0:
+        raise InputError(f"iterations must be >= 0, got {n_iterations}")
+    sizes = [image_size(p) for p in images]
+    lms = [read_landmark_file(lm, s) if lm else _detect(p, s, detector)
+           for p, lm, s in zip(images, landmarks, sizes)]
+    if isinstance(model, (str, Path)):
+        from ..io.registry import load_model
+
+        model = load_model(str(model))
+    res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
+                        focal_px=focal_px, n_iterations=int(n_iterations),
+                        robust="huber" if robust else None, shared_identity=shared_identity)
+    report = res.to_dict(images=[str(p) for p in images])
+    report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
+    return res, report
+
+
+def write_fit(result, report, mesh=None, report_path=None) -> list:
+    """Write the fitted mesh (one image: that frame; several: the shared neutral identity) and
+    the JSON report, each atomically. Returns the paths written."""
+    from ..io.atomic import atomic_path
+    from ..io.mesh import write_mesh
+
+    for out in (mesh, report_path):
+        # check every output's folder first: either every output is written or none
+        if out and not Path(out).resolve().parent.is_dir():
+            raise InputError(f"{out}: folder {Path(out).parent} does not exist")
+    written = []
+    if mesh:
+        m = result.model
+        verts = result.vertices(0) if result.n_frames == 1 else result.neutral_vertices()
+        write_mesh(mesh, verts, m.triangles, m.uv, m.triangle_uv)
+        written.append(Path(mesh))
+    if report_path:
+        with atomic_path(report_path) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=2))
+        written.append(Path(report_path))
+    return written
+
+
+def fit_item(item, folder, options: dict) -> dict:
+    """Work function of ``morphable fit-batch``: fit one :class:`~morphable.batch.BatchItem`
+    (all its images together) and write ``fit.obj`` and ``fit.json`` into ``folder``.
+
+    ``options``: ``model``, ``camera``, ``focal_px``, ``iterations``, ``robust``, ``independent``,
+    ``detector``, ``mesh_format`` (suffix, default ``obj``).
+
+    Returns a summary for the results log: n_frames, landmark RMSE (px, per frame and mean),
+    yaw/pitch/roll of each frame (degrees) and the fit's runtime.
+    """
+    folder = Path(folder)
+    res, report = fit_files(item.images, item.landmarks or None,
+                            model=options.get("model", "sfm"), camera=options.get("camera", "affine"),
+                            focal_px=options.get("focal_px"), n_iterations=options.get("iterations", 4),
+                            robust=options.get("robust", False),
+                            shared_identity=not options.get("independent", False),
+                            detector=options.get("detector", "hog"))
+    suffix = options.get("mesh_format", "obj").lstrip(".")
+    write_fit(res, report, mesh=folder / f"fit.{suffix}", report_path=folder / "fit.json")
+    rmse = [round(float(x), 4) for x in res.landmark_rmse_px]
+    return {"n_frames": res.n_frames, "landmark_rmse_px": round(float(np.mean(rmse)), 4),
+            "frame_rmse_px": rmse,
+            "pose_deg": [[round(float(a), 3) for a in e] for e in res.euler_deg],
+            "fit_ms": round(float(res.runtime_ms), 2)}

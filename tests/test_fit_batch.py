@@ -1,0 +1,143 @@
+"""``morphable fit-batch``: real fits of synthetic landmark sets, kill/resume, Dask, failures."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from morphable.batch import RESULTS
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+       "MKL_NUM_THREADS": "1"}
+
+
+def make_items(folder: Path, sfm, n: int, size=(320, 320), seed=0) -> Path:
+    """n tiny grey PNGs, each with the .pts of a random SFM face in a random pose."""
+    from PIL import Image
+
+    from morphable.camera import Camera
+    from morphable.fitting import simulate_landmarks
+    from morphable.io.landmarks import write_pts
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    Image.new("L", size, 128).save(folder / "blank.png")
+    for i in range(n):
+        cam = Camera.looking_at_face(image_size=size, yaw=rng.uniform(-40, 40),
+                                     pitch=rng.uniform(-15, 15), roll=rng.uniform(-10, 10))
+        lms = simulate_landmarks(sfm, cam, identity=rng.normal(size=sfm.n_identity))
+        lms += rng.normal(scale=0.5, size=lms.shape)
+        lms = np.where(np.isfinite(lms), lms, lms[48])  # .pts has no missing points; SFM ignores them
+        os.link(folder / "blank.png", folder / f"face{i:02d}.png")
+        write_pts(folder / f"face{i:02d}.pts", lms)
+    (folder / "blank.png").unlink()
+    return folder
+
+
+def cli(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "morphable.cli", "-q", *map(str, args)],
+                          env=ENV, capture_output=True, text=True, **kw)
+
+
+def records(out: Path) -> list:
+    return [json.loads(x) for x in (out / RESULTS).read_text().splitlines()]
+
+
+def comparable(rec: dict) -> dict:
+    return {k: rec[k] for k in ("id", "status", "n_frames", "landmark_rmse_px", "frame_rmse_px", "pose_deg")}
+
+
+@pytest.fixture(scope="module")
+def items20(tmp_path_factory, sfm):
+    return make_items(tmp_path_factory.mktemp("fb") / "imgs", sfm, 20)
+
+
+@pytest.fixture(scope="module")
+def reference(items20, tmp_path_factory):
+    """An uninterrupted serial run."""
+    out = tmp_path_factory.mktemp("ref") / "out"
+    r = cli("fit-batch", items20, "--out", out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_uninterrupted_run(reference):
+    recs = records(reference)
+    assert sorted(r["id"] for r in recs) == [f"face{i:02d}" for i in range(20)]
+    for r in recs:
+        assert r["status"] == "ok" and r["n_frames"] == 1
+        assert 0 < r["landmark_rmse_px"] < 5.0  # 0.5 px noise plus model error
+        folder = reference / "items" / r["id"]
+        rep = json.loads((folder / "fit.json").read_text())
+        assert rep["frames"][0]["landmark_rmse_px"] == pytest.approx(r["landmark_rmse_px"], abs=1e-4)
+        assert (folder / "fit.obj").stat().st_size > 100_000
+    # a re-run does nothing and duplicates nothing
+    again = cli("fit-batch", reference.parent.parent / "does-not-matter", "--out", reference)
+    assert again.returncode == 2 and "no images found" in again.stderr
+    assert len(records(reference)) == 20
+
+
+def test_kill_and_resume_matches_uninterrupted(items20, reference, tmp_path):
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "morphable.cli", "-q", "fit-batch", str(items20),
+                             "--out", str(out)], env=ENV, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if (out / RESULTS).exists() and len((out / RESULTS).read_text().splitlines()) >= 5:
+            break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    first = len(records(out))
+    assert 5 <= first < 20, f"the run was not interrupted mid-way ({first} items done)"
+    r = cli("fit-batch", items20, "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert f"{first} already done" in r.stdout
+    recs = records(out)
+    assert len(recs) == 20  # none lost, none twice
+    ref = {x["id"]: comparable(x) for x in records(reference)}
+    assert {x["id"]: comparable(x) for x in recs} == ref
+    assert sorted(p.name for p in (out / "items").iterdir()) == sorted(ref)  # no temporary leftovers
+    for x in recs:
+        a = (out / "items" / x["id"] / "fit.obj").read_text()
+        assert a == (reference / "items" / x["id"] / "fit.obj").read_text()
+
+
+def test_failed_items_and_multi_frame_subjects(tmp_path, sfm):
+    d = make_items(tmp_path / "imgs", sfm, 3, seed=1)
+    (d / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR")  # truncated
+    (d / "face02.pts").write_text("version: 1\nn_points: 3\n{\n1 2\n3 4\n5 6\n}\n")
+    (tmp_path / "m.csv").write_text("image,landmarks,subject\n"
+                                    "imgs/face00.png,imgs/face00.pts,anna\n"
+                                    "imgs/face01.png,imgs/face01.pts,anna\n"
+                                    "imgs/face02.png,,bob\nimgs/broken.png,,carl\n")
+    r = cli("fit-batch", tmp_path / "m.csv", "--out", tmp_path / "out")
+    assert r.returncode == 1  # some items failed, the others were fitted
+    recs = {x["id"]: x for x in records(tmp_path / "out")}
+    assert recs["anna"]["status"] == "ok" and recs["anna"]["n_frames"] == 2
+    assert "face02.pts: expected 68 iBUG landmarks, got 3" in recs["bob"]["error"]
+    assert "broken.png: cannot read image" in recs["carl"]["error"]
+    assert sorted(p.name for p in (tmp_path / "out" / "items").iterdir()) == ["anna"]
+    assert "1 fitted, 2 failed" in r.stdout
+
+
+def test_process_pool_and_dask_local_cluster_match_serial(tmp_path, sfm):
+    pytest.importorskip("distributed")
+    d = make_items(tmp_path / "imgs", sfm, 4, seed=2)
+    runs = {}
+    for name, extra in (("serial", []), ("pool", ["--workers", "2"]),
+                        ("dask", ["--workers", "2", "--scheduler", "local"])):
+        r = cli("fit-batch", d, "--out", tmp_path / name, *extra)
+        assert r.returncode == 0, r.stderr
+        runs[name] = sorted((comparable(x) for x in records(tmp_path / name)), key=lambda x: x["id"])
+    assert len(runs["serial"]) == 4
+    for name in ("pool", "dask"):
+        for a, b in zip(runs[name], runs["serial"]):
+            assert a["id"] == b["id"]
+            assert a["landmark_rmse_px"] == pytest.approx(b["landmark_rmse_px"], abs=1e-3)
