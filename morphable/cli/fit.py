@@ -31,6 +31,10 @@ def add_parser(sub):
     p.add_argument("--detector", choices=("hog", "cnn"), default="hog", help="dlib face detector")
     p.add_argument("--out-mesh", help="output mesh (.obj with UVs, .ply, .stl)")
     p.add_argument("--report", help="output JSON report")
+    p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "
+                                     "(several images: NAME_0.png, NAME_1.png, ...)")
+    p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
+                   help="how --overlay draws the mesh (default shaded)")
     return p
 
 
@@ -50,6 +54,10 @@ def run(args):
     from ..fitting import fit_landmarks
     from ..io.landmarks import read_pts
 
+    if args.overlay:
+        from ..overlay import check_overlay_path
+
+        check_overlay_path(args.overlay)
     for out in (args.out_mesh, args.report):
         # check the outputs' folders first: either every output is written or none
         if out and not Path(out).resolve().parent.is_dir():
@@ -78,6 +86,11 @@ def run(args):
                         shared_identity=not args.independent)
     report = res.to_dict(images=[str(p) for p in images])
     report["landmarks"] = [str(p) for p in args.landmarks] if args.landmarks else f"dlib {args.detector}"
+    if args.overlay:  # first: drawing is the likeliest step to fail
+        from ..overlay import write_overlays
+
+        style = None if args.overlay_style == "none" else args.overlay_style
+        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, images, mesh=style)]
     if args.out_mesh:
         from ..io.mesh import write_mesh
 

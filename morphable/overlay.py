@@ -1,0 +1,190 @@
+"""Overlays: the input photo with the fitted mesh and the landmarks drawn on top.
+
+The mesh is drawn with the fit's own camera through :mod:`morphable.raster` (ray-cast
+visibility), either shaded and alpha-blended over the photo or as the wireframe of its
+visible triangles. Landmarks: the given/detected ones as green crosses, the projections of
+the fitted model points as red discs (drawn last, so a red pixel marks a fitted position).
+
+Examples
+--------
+>>> import numpy as np
+>>> from morphable import load_model
+>>> from morphable.fitting import fit_landmarks
+>>> model = load_model("sfm")                                    # doctest: +SKIP
+>>> res = fit_landmarks(model, landmarks[None], [[1280, 1024]])  # doctest: +SKIP
+>>> img = draw_overlay("image_0010.png", res, mesh="wireframe")  # doctest: +SKIP
+>>> img.shape, img.dtype                                         # doctest: +SKIP
+((1024, 1280, 3), dtype('uint8'))
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["draw_overlay", "save_overlay", "write_overlays", "check_overlay_path", "MESH_STYLES", "GIVEN_COLOR",
+           "FITTED_COLOR"]
+
+MESH_STYLES = ("shaded", "wireframe", None)
+GIVEN_COLOR = (0, 220, 0)
+"""RGB of the given (or detected) landmarks: crosses."""
+FITTED_COLOR = (255, 0, 0)
+"""RGB of the fitted landmarks (projected model points): discs."""
+
+
+def _photo(image) -> np.ndarray:
+    """Path or array -> (H, W, 3) float32 in [0, 1] (the raster module's reader)."""
+    from .raster import as_texture
+
+    return as_texture(image)
+
+
+def _frame_index(result, frame: int) -> int:
+    n = result.n_frames
+    if not isinstance(frame, (int, np.integer)) or not -n <= frame < n:
+        raise InputError(f"frame {frame!r}: the fit has {n} frame(s)")
+    return int(frame) % n
+
+
+def _visible_edges(triangles, vis) -> np.ndarray:
+    """(M, 2) vertex-id pairs of the edges of the triangles seen by at least one sample."""
+    seen = np.unique(vis.triangle_id[vis.mask])
+    t = triangles[seen]
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def _pixels(points, W, H, margin):
+    """Finite points (N, 2) within ``margin`` of the image -> rounded integer pixels."""
+    p = np.asarray(points, dtype=np.float64)
+    p = p[np.isfinite(p).all(1)]
+    p = p[(p[:, 0] > -margin) & (p[:, 0] < W + margin) & (p[:, 1] > -margin) & (p[:, 1] < H + margin)]
+    return [(int(x), int(y)) for x, y in np.round(p)]
+
+
+def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
+                 alpha: float = 0.6, mesh_color=(0.75, 0.75, 0.75), landmarks: bool = True,
+                 radius: int | None = None, supersample: int = 2) -> np.ndarray:
+    """Draw a fit over its photo.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8/float image, or a path
+        The photo of ``frame``; its size must be the camera's ``image_size``.
+    result : morphable.fitting.FitResult
+    frame : int
+        Which frame of a multi-frame fit (its mesh, camera and landmarks).
+    mesh : "shaded", "wireframe" or None
+        Shaded: Lambertian grey mesh blended with weight ``alpha``; wireframe: the edges of
+        the visible triangles (anti-aliased lines, opacity ``alpha``); None: landmarks only.
+    alpha : float in [0, 1]
+    mesh_color : (3,) float in [0, 1], albedo of the shaded mesh / colour of the wireframe
+    landmarks : bool
+        Draw the given landmarks (green crosses) and the fitted ones (red discs).
+    radius : int or None
+        Landmark size in pixels; default ``max(2, min(W, H) // 250)``.
+    supersample : int
+        Samples per pixel along each axis for the shaded mesh's edges.
+
+    Returns
+    -------
+    (H, W, 3) uint8
+
+    Raises
+    ------
+    InputError
+        Image size different from the camera's, a bad ``frame``, ``mesh`` or ``alpha``.
+    """
+    from PIL import Image, ImageDraw
+
+    from .raster import render, visibility
+
+    i = _frame_index(result, frame)
+    if mesh not in MESH_STYLES:
+        raise InputError(f"mesh={mesh!r}: choose from shaded, wireframe or None")
+    if not 0.0 <= float(alpha) <= 1.0:
+        raise InputError(f"alpha={alpha}: must be in [0, 1]")
+    photo = _photo(image).astype(np.float64)
+    H, W = photo.shape[:2]
+    cam = result.cameras[i]
+    if tuple(cam.image_size) != (W, H):
+        raise InputError(f"image is {W}x{H}, the fit's camera of frame {i} is "
+                         f"{cam.image_size[0]}x{cam.image_size[1]}")
+    color = np.asarray(mesh_color, dtype=np.float64)
+    if color.shape != (3,) or not np.isfinite(color).all():
+        raise InputError(f"mesh_color must be 3 numbers in [0, 1], got {mesh_color}")
+    out = photo
+    if mesh is not None:
+        vertices = np.asarray(result.vertices(i), dtype=np.float64)
+        triangles = np.asarray(result.model.triangles)
+        if mesh == "shaded":
+            vis = visibility(vertices, triangles, cam, supersample=max(1, int(supersample)))
+            # black background: the render is the mesh premultiplied by its pixel coverage
+            shaded = render(vertices, triangles, vis=vis, colors=color, background=(0.0, 0.0, 0.0))
+            cover = alpha * vis.coverage()[..., None]
+            out = photo * (1.0 - cover) + alpha * shaded
+        out = Image.fromarray(np.round(255 * np.clip(out, 0, 1)).astype(np.uint8))
+        if mesh == "wireframe":
+            vis = visibility(vertices, triangles, cam)
+            uv = cam.project(vertices)
+            layer = Image.new("RGBA", out.size, (0, 0, 0, 0))
+            draw = ImageDraw.Draw(layer)
+            rgba = tuple(int(round(255 * c)) for c in np.clip(color, 0, 1)) + (int(round(255 * alpha)),)
+            for a, b in _visible_edges(triangles, vis):
+                draw.line([tuple(uv[a]), tuple(uv[b])], fill=rgba, width=1)
+            out = Image.alpha_composite(out.convert("RGBA"), layer).convert("RGB")
+    else:
+        out = Image.fromarray(np.round(255 * np.clip(out, 0, 1)).astype(np.uint8))
+    if landmarks:
+        r = int(radius) if radius is not None else max(2, min(W, H) // 250)
+        draw = ImageDraw.Draw(out)
+        # marks centred on the nearest pixel (pixel centres sit at integer coordinates)
+        for x, y in _pixels(result.landmarks[i], W, H, r):
+            draw.line([(x - r, y - r), (x + r, y + r)], fill=GIVEN_COLOR, width=max(1, r // 2))
+            draw.line([(x - r, y + r), (x + r, y - r)], fill=GIVEN_COLOR, width=max(1, r // 2))
+        for x, y in _pixels(result.fitted_landmarks[i], W, H, r):
+            draw.ellipse([x - r, y - r, x + r, y + r], fill=FITTED_COLOR)
+    return np.asarray(out)
+
+
+_FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+
+
+def check_overlay_path(path) -> Path:
+    """Raise InputError unless ``path`` ends in .png/.jpg/.jpeg in an existing folder."""
+    path = Path(path)
+    if path.suffix.lower() not in _FORMATS:
+        raise InputError(f"{path}: overlay must be a .png or .jpg file")
+    if not path.resolve().parent.is_dir():
+        raise InputError(f"{path}: folder {path.resolve().parent} does not exist")
+    return path
+
+
+def save_overlay(path, image, result, frame: int = 0, **kwargs) -> Path:
+    """:func:`draw_overlay` written to a .png/.jpg at ``path`` (atomically) -> the path."""
+    from PIL import Image
+
+    from .io.atomic import atomic_path
+
+    path = check_overlay_path(path)
+    img = draw_overlay(image, result, frame, **kwargs)
+    with atomic_path(path) as tmp:
+        Image.fromarray(img).save(tmp, format=_FORMATS[path.suffix.lower()])
+    return path
+
+
+def write_overlays(path, result, images, **kwargs) -> list:
+    """One overlay per frame: ``path`` itself for a single image, else ``stem_<i>.suffix``.
+
+    ``images``: the N photos (paths or arrays) of the fit's frames. Returns the paths written.
+    """
+    images = list(images)
+    if len(images) != result.n_frames:
+        raise InputError(f"{len(images)} images for a fit of {result.n_frames} frames")
+    path = Path(path)
+    if len(images) == 1:
+        return [save_overlay(path, images[0], result, 0, **kwargs)]
+    return [save_overlay(path.with_name(f"{path.stem}_{i}{path.suffix}"), im, result, i, **kwargs)
+            for i, im in enumerate(images)]
