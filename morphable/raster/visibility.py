@@ -247,27 +247,26 @@ def _window_rays(camera, x0, x1, y0, y1, s, z0):
     the plane ``Zc = z0`` just in front of the mesh, so float32 hit distances stay small.
     """
     R, tr = camera.rotation, camera.translation
-    if camera.kind == "perspective":
-        o3d = _import_open3d()
-        # open3d's pinhole rays pass through (j + 0.5, i + 0.5) of an OpenCV camera (y down,
-        # z forward); scaling and shifting its intrinsics maps them onto our samples
-        f, (cx, cy) = camera.focal, camera.principal
-        K = np.array([[f * s, 0, s * (cx + 0.5 - x0)], [0, f * s, s * (cy + 0.5 - y0)], [0, 0, 1]])
-        flip = np.diag([1.0, -1.0, -1.0])
-        E = np.eye(4)
-        E[:3, :3], E[:3, 3] = flip @ R, flip @ tr
-        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-            o3d.core.Tensor(K), o3d.core.Tensor(E), (x1 - x0) * s, (y1 - y0) * s)
-        return rays.numpy()
-    xc = (((np.arange(x0 * s, x1 * s) + 0.5) / s - 0.5 - camera.principal[0]) / camera.scale)
-    yc = ((camera.principal[1] - ((np.arange(y0 * s, y1 * s) + 0.5) / s - 0.5)) / camera.scale)
-    R32 = R.astype(np.float32)
+    k = camera.scale if camera.kind == "affine" else camera.focal
+    # camera-frame x and y of the sample columns and rows (per mm, or per unit depth)
+    xc = ((np.arange(x0 * s, x1 * s) + 0.5) / s - 0.5 - camera.principal[0]) / k
+    yc = (camera.principal[1] - ((np.arange(y0 * s, y1 * s) + 0.5) / s - 0.5)) / k
+    # the varying half of a ray (affine: origin, perspective: direction) is row(j) + col(i)
+    # in world coordinates, the other half a constant
+    if camera.kind == "affine":
+        row = xc[:, None] * R[0] + (np.array([0.0, 0.0, z0]) - tr) @ R
+        const, varying, fixed = -R[2], slice(0, 3), 3
+    else:
+        row = xc[:, None] * R[0] - R[2]
+        const, varying, fixed = -tr @ R, slice(3, 6), 0
+    row = row.astype(np.float32)
+    col = (yc[:, None] * R[1]).astype(np.float32)
     rays = np.empty((len(yc), len(xc), 6), dtype=np.float32)
-    o = rays[..., :3]
-    np.multiply(xc.astype(np.float32)[None, :, None], R32[0], out=o)
-    o += yc.astype(np.float32)[:, None, None] * R32[1]
-    o += ((np.array([0.0, 0.0, z0]) - tr) @ R).astype(np.float32)
-    rays[..., 3:] = -R32[2]
+    # one coordinate at a time: numpy is several times faster at this than at a broadcast
+    # over a last axis of length 3
+    for c in range(3):
+        np.add(col[:, None, c], row[None, :, c], out=rays[..., varying.start + c])
+        rays[..., fixed + c] = const[c]
     return rays
 
 
