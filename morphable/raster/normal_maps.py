@@ -28,7 +28,7 @@ def _normalize(n, mask):
         return unit * m[..., None].to(n.dtype)
     out = np.zeros_like(n)
     fg = n[mask]
-    out[mask] = fg / np.sqrt((fg * fg).sum(-1, keepdims=True) + _TINY)
+    out[mask] = fg / np.sqrt(np.einsum("ij,ij->i", fg, fg) + _TINY)[:, None]
     return out
 
 
@@ -127,8 +127,9 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
             n = n @ first.camera.rotation.T.astype(n.dtype)
         dtype = np.result_type(n.dtype, np.float32)
         fg = first.matrix(len(n), dtype=dtype, foreground=True) @ n.astype(dtype, copy=False)
+        fg /= np.sqrt(np.einsum("ij,ij->i", fg, fg) + _TINY)[:, None]
         out = np.zeros((first.triangle_id.size, 3), dtype=dtype)
-        out[first.pixels] = fg / np.sqrt((fg * fg).sum(-1, keepdims=True) + _TINY)
+        out[first.pixels] = fg
         return out.reshape(first.shape + (3,))
     return _resolve(vis, _interpolated_normals(vertices, tri, vis, frame, rotation, weighting))
 

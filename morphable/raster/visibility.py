@@ -233,7 +233,8 @@ def cast(sc, rays):
     bary = np.empty(uv.shape[:-1] + (3,), dtype=np.float32)
     # Embree's (u, v) weight corners 1 and 2: p = (1 - u - v) p0 + u p1 + v p2
     bary[..., 1:] = uv
-    np.subtract(1.0, uv.sum(-1), out=bary[..., 0])
+    np.subtract(1.0, uv[..., 0], out=bary[..., 0])
+    bary[..., 0] -= uv[..., 1]
     bary[tri < 0] = 0.0
     return hit["t_hit"].numpy(), tri, bary
 
