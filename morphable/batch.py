@@ -229,15 +229,22 @@ def run_batch(items, out_dir, work, options: dict | None = None, workers: int = 
     from tqdm import tqdm
 
     out = Path(out_dir)
-    (out / "items").mkdir(parents=True, exist_ok=True)
     done = read_results(out)
-    for stale in (out / "items").glob(".*"):
-        # temporary folders of a killed run: their items are not in the log and run again
-        shutil.rmtree(stale, ignore_errors=True)
     todo = [it for it in items if it.id not in done]
     counts = {"done": 0, "skipped": len(items) - len(todo), "ok": 0, "error": 0}
     options = options or {}
     results = out / RESULTS
+    # connect first: an unreachable scheduler fails before anything is written
+    executor, cluster = _executor(workers, scheduler) if todo else (None, None)
+    try:
+        (out / "items").mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        if cluster is not None:
+            cluster.close()
+        raise InputError(f"{out}: cannot create the output folder ({e.strerror or e})") from None
+    for stale in (out / "items").glob(".*"):
+        # temporary folders of a killed run: their items are not in the log and run again
+        shutil.rmtree(stale, ignore_errors=True)
     bar = tqdm(total=len(todo), disable=not progress, desc="fit-batch", unit="item")
 
     def record(rec):
@@ -248,7 +255,6 @@ def run_batch(items, out_dir, work, options: dict | None = None, workers: int = 
             log.warning("%s: %s", rec["id"], rec["error"])
         bar.update(1)
 
-    executor, cluster = _executor(workers, scheduler) if todo else (None, None)
     try:
         if executor is None:
             for it in todo:

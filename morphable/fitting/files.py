@@ -47,6 +47,9 @@ def image_size(path) -> tuple[int, int]:
     try:
         with Image.open(path) as im:
             W, H = im.size
+            # checks the PNG chunks' CRCs to the end of the file without decoding: a
+            # truncated or corrupt image is refused here, not after a minute of fitting
+            im.verify()
     except FileNotFoundError:
         raise InputError(f"{path}: no such image") from None
     except IsADirectoryError:
@@ -107,7 +110,7 @@ def _detect(path, size, detector: str):
     mp = size[0] * size[1] / 1e6
     if mp > MAX_DETECT_MEGAPIXELS:
         raise InputError(f"{path}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
-                         f"{MAX_DETECT_MEGAPIXELS:.0f} face detection takes; downscale it or give landmarks")
+                         f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
     return detect_landmarks(path, detector=detector)
 
 

@@ -178,8 +178,13 @@ def download(name: str, dest: Path | None = None, url: str | None = None) -> Pat
         raise InputError(f"{name}: unknown model (known: {', '.join(MODELS)})")
     spec = MODELS[name]
     target = Path(dest or cache_dir()) / spec["folder"]
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{spec['folder']}."))
+    created = not target.parent.exists()
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{spec['folder']}."))
+    except OSError as e:
+        raise InputError(f"{target.parent}: cannot create the download folder ({e.strerror or e})") from None
+    ok = False
     try:
         source = url or spec["url"]
         if "archive_folder" in spec:
@@ -205,7 +210,10 @@ def download(name: str, dest: Path | None = None, url: str | None = None) -> Pat
         if target.exists():
             shutil.rmtree(target)
         staging.rename(target)
+        ok = True
         return target
     finally:
         if staging.exists():
             shutil.rmtree(staging)
+        if created and not ok:  # a failed download leaves nothing behind, not even its folder
+            shutil.rmtree(target.parent, ignore_errors=True)
