@@ -282,31 +282,10 @@ def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
         result["eos"] = {"ms": float(np.median(times)), "mean_mm": float(np.mean(errs))}
     with atomic_path(folder / "error_vs_runtime.json") as tmp:
         tmp.write_text(json.dumps(result, indent=1))
-    _plot(result, folder / "error_vs_runtime.png")
+    from morphable.plots import fitting_sweep
+
+    fitting_sweep(result, folder / "error_vs_runtime.png")
     return result
-
-
-def _plot(result, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=90)
-    for name, pts in result["curves"].items():
-        ax.plot([p["ms"] for p in pts], [p["mean_mm"] for p in pts], "o-", label=f"ours, {name}")
-    if "eos" in result:
-        ax.plot([result["eos"]["ms"]], [result["eos"]["mean_mm"]], "k*", ms=12, label="eos fit_shape_and_pose")
-    ax.set_xscale("log")
-    ax.set_xlabel("time per fit (ms, median)")
-    ax.set_ylabel("mean 3D vertex error (mm)")
-    ax.set_title(f"SFM landmark fitting, noise {result['sigma_px']:g} px, n={result['n']}"
-                 "\n(points: 0, 1, 2, 4, 8 LM iterations)", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
 
 
 def main(argv=None):

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from morphable.errors import FitError, InputError, MorphableError
 from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
@@ -257,8 +259,9 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
                  seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
-                 landmark_scale: bool = True, log=None):
-    """Run every method on every condition.
+                 landmark_scale: bool = True, log=None, progress: bool = False):
+    """Run every method on every condition (``log``: a callable taking one line per cell;
+    ``progress``: a tqdm bar on stderr).
 
     Returns
     -------
@@ -278,10 +281,14 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     errors = {}
     peers = {}
     alignment = None
+    bar = tqdm(total=len(conditions) * len(methods), disable=not progress, desc="florence",
+               unit="cell")
     for c in conditions:
+        bar.set_postfix_str(f"{c} video", refresh=False)
         lm, size, desc = video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect, frames_dir)
         report["videos"][c] = desc
         for m in methods:
+            bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:
                 rec = reconstruct(m, model, lm, size, efforts.get(m), peers)
                 cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
@@ -300,6 +307,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
             if log:
                 log(f"{m:>17s} {c:<12s} " + (f"{cell['mean_mm']:.3f} mm, {cell['s_per_frame']:.3f} s/frame"
                                             if "mean_mm" in cell else cell["error"]))
+            bar.update()
+    bar.close()
     report["metric"] = METRIC.format(r=radius)
     report["alignment"] = {
         "landmarks": "similarity (Umeyama, with scale)" if landmark_scale else "rigid (Umeyama)",
@@ -370,6 +379,8 @@ def _parser():
     p.add_argument("--report", required=True, help="JSON report to write")
     p.add_argument("--errors", help="per-vertex errors .npz (default: beside the report)")
     p.add_argument("--heatmaps", help="folder for frontal error heat maps (method_condition.png)")
+    p.add_argument("--plot", help="per-condition bar chart of the errors (.png, .pdf, .svg)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     return p
 
 
@@ -384,7 +395,11 @@ def _write_outputs(report: dict, errors: dict, report_path: Path, errors_path: P
 
 
 def main(argv=None) -> int:
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="%(levelname)s: %(message)s")
     try:
         report_path = Path(args.report)
         errors_path = Path(args.errors) if args.errors else report_path.with_name(report_path.stem + "_errors.npz")
@@ -402,11 +417,17 @@ def main(argv=None) -> int:
         if args.iterations:
             efforts = {"ours": {"n_iterations": args.iterations},
                        "ours-independent": {"n_iterations": args.iterations}}
-        report, errors = run_protocol(
-            scan, model, args.methods, args.conditions, args.frames, args.video_frames, args.seed,
-            detect=args.detect, frames_dir=args.frames_dir, efforts=efforts, radius=args.radius,
-            icp=not args.no_icp, icp_scale=args.icp_scale, landmark_scale=not args.rigid,
-            log=lambda s: print(s, file=sys.stderr))
+        if args.plot:
+            from morphable.plots import check_plot_path
+
+            check_plot_path(args.plot)
+        with logging_redirect_tqdm():
+            report, errors = run_protocol(
+                scan, model, args.methods, args.conditions, args.frames, args.video_frames,
+                args.seed, detect=args.detect, frames_dir=args.frames_dir, efforts=efforts,
+                radius=args.radius, icp=not args.no_icp, icp_scale=args.icp_scale,
+                landmark_scale=not args.rigid, log=logging.getLogger("evaluation.florence").info,
+                progress=not args.quiet)
         cells = [cell for per in report["methods"].values() for cell in per.values()]
         if cells and all("error" in cell for cell in cells):
             raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")
@@ -416,6 +437,10 @@ def main(argv=None) -> int:
             raise InputError(f"{args.heatmaps}: heat-map folder does not exist")
         print(format_table(report))
         _write_outputs(report, errors, report_path, errors_path)
+        if args.plot:
+            from morphable.plots import condition_bars
+
+            condition_bars(report, args.plot)
         if args.heatmaps:
             from .videos import frontal_frame
 

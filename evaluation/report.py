@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from morphable.errors import FitError, InputError, MorphableError
 
@@ -40,8 +42,11 @@ EFFORTS = {
 """Effort levels per method: frames per video and the method's own settings."""
 
 
-def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30, log=None) -> dict:
+def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30, log=None,
+        progress: bool = False) -> dict:
     """Evaluate every effort level -> ``{"points": [...], "methods", "conditions", ...}``.
+
+    ``log``: callable taking one line per effort level; ``progress``: a tqdm bar (stderr).
 
     Each point: method, label, frames, settings, ``s_per_video`` (mean over conditions),
     ``mean_mm`` (mean over conditions of the per-video mean error), ``per_condition``.
@@ -55,20 +60,25 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
     videos = {(c, k): video_landmarks(scan, model, c, k, video_frames, seed)
               for c in conditions for k in frames}
     points, peers = [], {}
+    bar = tqdm(total=sum(len(EFFORTS[m]) for m in methods) * len(conditions), disable=not progress,
+               desc="error vs run time", unit="fit")
     for m in methods:
         for effort in EFFORTS[m]:
             per, secs = {}, []
             for c in conditions:
+                bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
                 lm, size, _ = videos[(c, effort["frames"])]
                 try:
                     rec = reconstruct(m, model, lm, size, effort["settings"], peers)
                     cell, _ = evaluate(rec, scan)
                 except FitError as e:
                     per[c] = {"error": str(e)}
+                    bar.update()
                     continue
                 per[c] = {"mean_mm": cell["mean_mm"], "std_mm": cell["std_mm"],
                           "s_per_video": rec.seconds}
                 secs.append(rec.seconds)
+                bar.update()
             ok = [p["mean_mm"] for p in per.values() if "mean_mm" in p]
             point = {"method": m, "label": effort["label"], "frames": effort["frames"],
                      "settings": effort["settings"], "per_condition": per,
@@ -79,6 +89,7 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
                 log(f"{m:>17s} {effort['label']:<28s} "
                     + (f"{point['mean_mm']:.3f} mm  {point['s_per_video']:.3f} s/video"
                        if point["mean_mm"] is not None else "failed"))
+    bar.close()
     return {"points": points, "methods": list(methods), "conditions": list(conditions),
             "scan": scan.source, "model": model.name, "seed": seed, "video_frames": video_frames,
             "metric": "point-to-plane mm, mean over vertices, then over conditions"}
@@ -99,50 +110,13 @@ def _markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plot(result: dict, path: Path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for m in result["methods"]:
-        pts = [p for p in result["points"] if p["method"] == m and p["mean_mm"] is not None]
-        if not pts:
-            continue
-        if all(p["s_per_video"] == 0 for p in pts):  # no fitting: a floor, not a curve
-            ax.axhline(pts[0]["mean_mm"], ls="--", color="gray", label=f"{m} (no fitting)")
-            continue
-        pts.sort(key=lambda p: p["s_per_video"])
-        x = np.array([max(p["s_per_video"], 1e-4) for p in pts])
-        y = np.array([p["mean_mm"] for p in pts])
-        # the curve is the best error reached within each time budget; every level is a dot
-        front = y <= np.minimum.accumulate(y)
-        line, = ax.plot(x[front], y[front], "-", label=m)
-        ax.plot(x, y, "o", color=line.get_color(), alpha=0.8, ms=4)
-        for p, xi in zip(pts, x):
-            ax.annotate(str(p["frames"]), (xi, p["mean_mm"]), fontsize=7, xytext=(3, 3),
-                        textcoords="offset points")
-    ax.set_xscale("log")
-    ax.set_xlabel("seconds per video (fitting only)")
-    ax.set_ylabel("point-to-plane error (mm)")
-    ax.set_title(f"Error vs run time, {Path(result['scan']).name}, mean of "
-                 f"{'/'.join(result['conditions'])}\n(dots: effort levels labelled with frames per "
-                 f"video; lines: best error within a time budget)", fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 def write_outputs(result: dict, out: Path, stem: str = "error_vs_runtime") -> list:
     """Write ``stem``.png/.json/.md into ``out`` (atomically) -> the paths."""
     from morphable.io.atomic import atomic_path
+    from morphable.plots import error_vs_runtime
 
     paths = [out / f"{stem}.{ext}" for ext in ("png", "json", "md")]
-    with atomic_path(paths[0]) as tmp:
-        _plot(result, tmp)
+    error_vs_runtime(result, paths[0])
     with atomic_path(paths[1]) as tmp:
         tmp.write_text(json.dumps(result, indent=1))
     with atomic_path(paths[2]) as tmp:
@@ -151,6 +125,8 @@ def write_outputs(result: dict, out: Path, stem: str = "error_vs_runtime") -> li
 
 
 def main(argv=None) -> int:
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     p = argparse.ArgumentParser(prog="python -m evaluation.report", description=__doc__.split("\n")[0])
     p.add_argument("--scan", default=str(_DATA / "james.obj"))
     p.add_argument("--scan-landmarks", default=str(_DATA / "james.ljson"))
@@ -161,7 +137,10 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--video-frames", type=int, default=30)
     p.add_argument("--out", default="reports", help="output folder (created if missing)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
     args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="%(levelname)s: %(message)s")
     try:
         for c in args.conditions:
             if c not in CONDITIONS:
@@ -170,8 +149,9 @@ def main(argv=None) -> int:
 
         model = load_model(args.model)
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
-        result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
-                     log=lambda s: print(s, file=sys.stderr))
+        with logging_redirect_tqdm():
+            result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
+                         log=logging.getLogger("evaluation.report").info, progress=not args.quiet)
         out = Path(args.out)
         try:
             out.mkdir(parents=True, exist_ok=True)
