@@ -59,6 +59,10 @@ def test_gradcheck_interpolate_and_normal_map():
     assert vis.mask.sum() > 50
     attrs = torch.rand(len(v), 2, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda a: interpolate(vis, a), (attrs,))
+    # the backward pass is itself differentiable (second-order methods, gradient penalties)
+    assert torch.autograd.gradgradcheck(lambda a: interpolate(vis, a) ** 2, (attrs,), fast_mode=True)
+    batch = torch.rand(2, len(v), 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a: interpolate(vis, a), (batch,), fast_mode=True)
     verts = torch.tensor(v, requires_grad=True)
     tiny = visibility(v, t, Camera.looking_at_face((5, 5), kind="perspective", face_width_px=8))
     assert tiny.mask.sum() >= 9
