@@ -265,19 +265,17 @@ def march_silhouette(lines, normals, view):
     -------
     a, b : (N, J) ids from ``lines``; w : (N, J) in [0, 1], the point ``(1 - w) a + w b``
     """
-    nz = np.einsum("nc,jmc->njm", view, normals)                  # (N, J, M)
+    J, M = lines.shape
+    nz = (normals.reshape(J * M, 3) @ view.T).T.reshape(-1, J, M)    # (N, J, M)
     valid = (lines >= 0)[None]
     front = (nz >= 0) & valid
     last = valid.sum(-1) - 1                                       # (1, J)
     k = np.where(front.any(-1), np.argmax(front, -1), last)        # first facing vertex
     km = np.maximum(k - 1, 0)
-    z1 = np.take_along_axis(nz, k[..., None], -1)[..., 0]
-    z0 = np.take_along_axis(nz, km[..., None], -1)[..., 0]
+    n_idx, j_idx = np.ogrid[:nz.shape[0], :J]
+    z1, z0 = nz[n_idx, j_idx, k], nz[n_idx, j_idx, km]
     w = np.where(k > 0, np.clip(-z0 / np.maximum(z1 - z0, 1e-12), 0.0, 1.0), 0.0)
-    L = np.broadcast_to(lines, nz.shape)
-    a = np.take_along_axis(L, km[..., None], -1)[..., 0]
-    b = np.take_along_axis(L, k[..., None], -1)[..., 0]
-    return a, b, w
+    return lines[j_idx, km], lines[j_idx, k], w
 
 
 def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, landmarks, mask,
@@ -302,7 +300,8 @@ def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, 
         t = np.clip(np.einsum("njsk,nsk->njs", rel, d) / np.maximum(dd, 1e-12), 0.0, 1.0)
         err = rel - t[..., None] * d[:, None]
         seg = np.argmin(np.einsum("njsk,njsk->njs", err, err), axis=-1)   # (N, J)
-        tt = np.take_along_axis(t, seg[..., None], -1)[..., 0]
+        n_idx, j_idx = np.ogrid[:len(seg), :len(lms)]
+        tt = t[n_idx, j_idx, seg]
         given = mask[:, lms]
         a = np.where(given, chain[seg], -1)
         b = np.where(given, chain[seg + 1], -1)
@@ -310,7 +309,8 @@ def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, 
         if rotation is not None and march.size:
             hidden = given & ((rotation[:, 2] @ jn.T) < 0)                # (N, J)
             if hidden.any():
-                pa, pb_, pw = march_silhouette(march, bank.normals[np.maximum(march, 0)], rotation[:, 2])
+                pa, pb_, pw = march_silhouette(march, bank.normals[np.maximum(march, 0)],
+                                               rotation[:, 2])
                 a = np.where(hidden, pa, a)
                 b = np.where(hidden, pb_, b)
                 w = np.where(hidden, pw, w)

@@ -4,10 +4,12 @@ Steps (each usable alone through the functions of this package):
 
 1. linear pose: a scaled orthographic camera from the 2D points and the model's mean
    landmarks (:func:`~morphable.fitting.pose.estimate_affine_pose`);
-2. jaw sliding: each 2D jaw point takes the closest point of the projected jaw polyline
-   (:func:`~morphable.fitting.correspondences.slide_contours`), re-picked at every iteration;
-3. alternating closed-form solves for identity then expression under the Gaussian prior
-   (:mod:`~morphable.fitting.linear`), repeated with 1 and 2 ``n_linear`` times;
+2. jaw correspondences: each 2D jaw point takes the closest point of the projected jaw
+   line, or where that line is self-occluded marches to the cheek's silhouette
+   (:func:`~morphable.fitting.correspondences.slide_contours`); re-picked every round and
+   every second nonlinear iteration;
+3. closed-form solves for identity, then expression, under the Gaussian prior
+   (:mod:`~morphable.fitting.linear`); steps 1 to 3 run ``n_linear`` times;
 4. joint Levenberg-Marquardt over rotation (axis-angle increments, no gimbal lock),
    translation, scale (affine) or depth (perspective), expressions and identity, with
    analytic Jacobians, an optional Huber loss and a Schur complement that keeps a shared
@@ -72,8 +74,8 @@ class _State:
 
 
 def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
-    """Gather mean, identity and expression rows (N, 68, 3[, K|E]) for the correspondences;
-    redone when they change, for the sliding jaw landmarks only once the rest is in place."""
+    """Gather the mean (N, 68, 3) and the identity and expression rows (N, 3, 68, K|E) of the
+    correspondences; after the first time only the sliding jaw landmarks are redone."""
     c = st.corr
     if sliding_only and st.rows is not None:
         if pb.sliding.size:
@@ -160,8 +162,7 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
     G = 1 if pb.shared else N
     corr = Correspondences.fixed(pb.bank, N)
     alpha, beta = np.zeros((G, K)), np.zeros((N, E))
-    st = None
-    W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
+    W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)     # the first pose: fixed landmarks only
     st = _State(None, None, None, alpha, beta, corr)
     _gather(pb, st)
     for it in range(max(n_linear, 1)):
