@@ -22,7 +22,7 @@ def as_texture(image) -> np.ndarray:
         try:
             with Image.open(image) as im:
                 image = np.asarray(im.convert("RGB"))
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, Image.DecompressionBombError) as e:
             raise InputError(f"{image}: cannot read image ({e})") from None
     a = np.asarray(image)
     if a.ndim == 2:

@@ -14,6 +14,10 @@ Conventions
   they are 3D (object-space) barycentrics, so interpolating any vertex attribute with them is
   perspective-correct.
 - Depth is ``-Zc`` in mm (the camera module's depth), ``inf`` on background samples.
+- Perspective: only what lies in front of the camera is seen (a mesh partly behind it is
+  clipped). Affine: the camera sits at infinity, the whole mesh is seen and parts of it may
+  have depth <= 0. Either way a mesh with depth <= 0 everywhere is an error (a camera
+  looking the wrong way).
 - Both sides of a triangle are visible (no back-face culling).
 """
 from __future__ import annotations
