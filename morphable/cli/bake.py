@@ -10,7 +10,8 @@ from .common import add_model_argument
 def add_camera_arguments(p, size_default):
     """Camera options shared by bake and render."""
     p.add_argument("--size", type=int, default=None,
-                   help=f"image size in pixels (square; default {size_default}, or the fit's image)")
+                   help=f"image size in pixels: square for MESH (default {size_default}); with "
+                        "--fit the fit's image scaled to this width (default its own size)")
     p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
                    help="projection for MESH (default affine); a fit brings its own camera")
     p.add_argument("--yaw", type=float, default=0.0,
