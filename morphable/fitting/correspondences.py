@@ -172,7 +172,7 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
         marches.append(arr)
     from ..normals import vertex_normals
 
-    normals = vertex_normals(model.mean.astype(np.float64), model.triangles)[rows] if len(rows) else np.zeros((0, 3))
+    normals = vertex_normals(model.mean.astype(np.float64), model.triangles)[rows]
     jaw_normals = []
     for lms, c in polylines:
         _, at, arc = expected_jaw_points(model, lms, rows[c])
@@ -182,7 +182,8 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
         vertex_ids=rows,
         mean=model.mean[rows].astype(np.float64),
         identity=np.ascontiguousarray(model.identity_basis[:, rows].astype(np.float64).transpose(1, 2, 0)),
-        expression=np.ascontiguousarray(model.expression_basis[:, rows].astype(np.float64).transpose(1, 2, 0)),
+        expression=np.ascontiguousarray(
+            model.expression_basis[:, rows].astype(np.float64).transpose(1, 2, 0)),
         fixed_row=fixed_row,
         polylines=polylines,
         normals=normals,

@@ -51,9 +51,10 @@ def solve_identity(P, target, W, A, prior, shared: bool):
 
     Parameters
     ----------
-    P : (N, L, 2, 3) projection of each point, or (N, 2, 3) shared by all points; target : (N, L, 2) px, the image point minus
-    everything but the identity term; W : (N, L) weights (1/px^2); A : (N, 3, L, K) identity rows
-    (coordinate-major)
+    P : (N, L, 2, 3) projection of each point, or (N, 2, 3) shared by all points
+    target : (N, L, 2) px, the image point minus everything but the identity term
+    W : (N, L) weights (1/px^2)
+    A : (N, 3, L, K) identity rows (coordinate-major)
     prior : float, weight of ``|alpha|^2``; shared : one identity for all frames
 
     Returns
@@ -69,8 +70,9 @@ def solve_identity(P, target, W, A, prior, shared: bool):
 def solve_expression(P, target, W, B, prior, nonnegative: bool):
     """Per-frame expression coefficients from ``P B beta ~= target`` (ridge).
 
-    ``nonnegative`` (blendshapes) clamps negative weights to 0 and re-solves the others
-    (an active-set NNLS, exact for the few modes of a blendshape model after <= E passes).
+    ``nonnegative`` (blendshapes) clamps negative weights to 0 and re-solves the others, up
+    to E passes (a one-way active set: close to NNLS, which the nonlinear stage then refines
+    with its projected steps).
 
     Returns (N, E).
     """

@@ -27,7 +27,8 @@ class FitResult:
     landmark_vertices : (N, 68) int, nearest model vertex of each used landmark, -1 if unused
     shared_identity : bool
     iterations : int, nonlinear iterations run
-    runtime_ms : float
+    runtime_ms : float, wall time of the fit (without the once-per-model preparation of its
+        landmark rows)
     cost : (N,) px^2, final sum of squared landmark residuals per frame
     """
 
