@@ -286,3 +286,28 @@ def test_cli_fit_bad_input_writes_nothing(tmp_path, data_dir, capsys):
     assert main(["fit", str(tmp_path / "missing.png"), "--landmarks", str(bad_pts)]) == 2
     assert "missing.png" in capsys.readouterr().err
     assert not out.exists() and list(tmp_path.iterdir()) == [bad_pts]
+
+
+def test_cli_fit_several_images(tmp_path, data_dir):
+    from morphable.cli import main
+
+    imgs = [data_dir / "images" / n for n in ("image_0010.png", "takeo.ppm")]
+    pts = [p.with_suffix(".pts") for p in imgs]
+    report = tmp_path / "fit.json"
+    args = ["fit", *map(str, imgs), "--landmarks", *map(str, pts), "--report", str(report)]
+    assert main(args + ["--camera", "perspective"]) == 0
+    rep = json.loads(report.read_text())
+    assert rep["n_frames"] == 2 and rep["shared_identity"]
+    assert [f["image_size"] for f in rep["frames"]] == [[1280, 1024], list(_size(imgs[1]))]
+    assert all("focal_px" in f for f in rep["frames"])
+    assert main(args + ["--independent"]) == 0
+    rep = json.loads(report.read_text())
+    assert not rep["shared_identity"] and all(len(f["identity"]) == 63 for f in rep["frames"])
+    assert main(["fit", *map(str, imgs), "--landmarks", str(pts[0])]) == 2   # one file, two images
+
+
+def _size(path):
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return im.size
