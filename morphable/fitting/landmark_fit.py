@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import FitError, InputError
 from ..landmarks import as_landmarks
 from .correspondences import Correspondences, landmark_bank, slide_contours
-from .linear import project_rows, solve_expression, solve_identity
+from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
 
@@ -59,6 +59,19 @@ class _Problem:
         self.AT = np.ascontiguousarray(self.A.transpose(1, 0, 2))     # (3, R, K)
         self.BT = np.ascontiguousarray(self.B.transpose(1, 0, 2))
         self.sliding = np.array(sorted(int(j) for lms, _ in bank.polylines for j in lms), dtype=np.int64)
+        self.gram = _fixed_gram(bank, K) if robust is None and K else None
+
+
+def _fixed_gram(bank, K):
+    """(fixed landmarks, the others, G (3, 3, K, K)): Gram blocks of the identity rows of the
+    landmarks with fixed vertices, cached per model and K (see ``linear.gram_hessian``)."""
+    cache = bank.__dict__.setdefault("_gram", {})
+    if K not in cache:
+        fixed = np.flatnonzero(bank.fixed_row >= 0)
+        Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
+        G = np.einsum("lik,ljm->ijkm", Af, Af)
+        cache[K] = (fixed, np.setdiff1d(np.arange(68), fixed), np.ascontiguousarray(G))
+    return cache[K]
 
 
 class _State:
@@ -182,7 +195,7 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
         base = pb.y - q[:, None] - m @ P.transpose(0, 2, 1)
         if K:
             expr = _combine(Bg, beta) @ P.transpose(0, 2, 1) if E else 0.0
-            alpha = solve_identity(P, base - expr, W, Ag, pb.prior_weight, pb.shared)
+            alpha = solve_identity(P, base - expr, W, Ag, pb.prior_weight, pb.shared, pb.gram)
         if E:
             ident = _combine(Ag, np.broadcast_to(alpha, (N, K))) @ P.transpose(0, 2, 1)
             beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
@@ -250,7 +263,8 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         if E:
             blocks.append(project_rows(JpR, st.rows[2]))
         Jf = np.concatenate(blocks, -1).reshape(N, 136, Pf)
-        Ja = project_rows(JpR, st.rows[1]).reshape(N, 136, K)
+        Ja4 = project_rows(JpR, st.rows[1])                            # (N, 2, 68, K)
+        Ja = Ja4.reshape(N, 136, K)
         w2 = np.concatenate([W, W], 1)[..., None]
         rr = r.transpose(0, 2, 1).reshape(N, 136)
         WJf, WJa = w2 * Jf, w2 * Ja
@@ -270,7 +284,7 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
                 Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
                 gf = np.where(keep, gf, 0.0)
                 Hfa = np.where(keep[:, :, None], Hfa, 0.0)
-        Haa = Ja.transpose(0, 2, 1) @ WJa
+        Haa = gram_hessian(JpR, W, Ja4, pb.gram)
         ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
         if pb.shared:
             Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["solve_identity", "solve_expression", "ridge_solve", "project_rows"]
+__all__ = ["solve_identity", "solve_expression", "ridge_solve", "project_rows", "gram_hessian"]
 
 
 def project_rows(P, rows):
@@ -38,15 +38,45 @@ def ridge_solve(H, g, prior):
     return np.linalg.solve(A, g[..., None])[..., 0]
 
 
-def _normal(P, W, basis, residual):
+def gram_hessian(P, W, Phi, gram):
+    """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
+    (N, 2, L, k)), using precomputed Gram blocks of the landmarks whose rows never change.
+
+    With a projection shared by all points (the affine camera) and one weight for all the
+    fixed landmarks of a frame, their part is ``w sum_ij (P^T P)_ij G_ij`` with
+    ``G_ij = sum_l A_l[i]^T A_l[j]`` computed once per model: about 4x fewer operations than
+    the plain product. ``gram = (fixed (F,), moving (M,), G (3, 3, k, k))``; frames that do
+    not qualify (per-point projections, missing or differently weighted fixed landmarks)
+    fall back to the plain product.
+    """
+    N, _, L, k = Phi.shape
+    W2 = np.concatenate([W, W], 1)
+    flat = Phi.reshape(N, 2 * L, k)
+    if gram is None or P.ndim != 3:
+        return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
+    fixed, moving, G = gram
+    wf = W[:, fixed]
+    ok = (wf[:, :1] > 0) & np.all(wf == wf[:, :1], axis=1, keepdims=True)
+    if not ok.all():
+        return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
+    M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
+    H = (M.reshape(N, 9) @ G.reshape(9, k * k)).reshape(N, k, k) * wf[:, :1, None]
+    Pm = Phi[:, :, moving].reshape(N, 2 * len(moving), k)
+    Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
+    return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm
+
+
+def _normal(P, W, basis, residual, gram=None):
     """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k)."""
     N, L = W.shape
-    Phi = project_rows(P, basis).reshape(N, 2 * L, -1)          # (N, 2L, k), x rows then y rows
-    WPhiT = (np.concatenate([W, W], 1)[..., None] * Phi).transpose(0, 2, 1)
-    return WPhiT @ Phi, (WPhiT @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
+    Phi = project_rows(P, basis)                                 # (N, 2, L, k): x rows, y rows
+    flat = Phi.reshape(N, 2 * L, -1)
+    W2 = np.concatenate([W, W], 1)
+    g = ((W2[..., None] * flat).transpose(0, 2, 1) @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
+    return gram_hessian(P, W, Phi, gram), g
 
 
-def solve_identity(P, target, W, A, prior, shared: bool):
+def solve_identity(P, target, W, A, prior, shared: bool, gram=None):
     """Identity coefficients from ``P A alpha ~= target``.
 
     Parameters
@@ -56,12 +86,13 @@ def solve_identity(P, target, W, A, prior, shared: bool):
     W : (N, L) weights (1/px^2)
     A : (N, 3, L, K) identity rows (coordinate-major)
     prior : float, weight of ``|alpha|^2``; shared : one identity for all frames
+    gram : optional precomputed Gram blocks, see :func:`gram_hessian`
 
     Returns
     -------
     (1, K) if shared else (N, K) coefficients in std units.
     """
-    H, g = _normal(P, W, A, target)
+    H, g = _normal(P, W, A, target, gram)
     if shared:
         H, g = H.sum(0, keepdims=True), g.sum(0, keepdims=True)
     return ridge_solve(H, g, prior)
