@@ -26,10 +26,8 @@ def _normalize(n, mask):
         m = torch.as_tensor(mask, device=n.device)
         unit = n * torch.rsqrt((n * n).sum(-1, keepdim=True) + _TINY)
         return unit * m[..., None].to(n.dtype)
-    out = np.zeros_like(n)
-    fg = n[mask]
-    out[mask] = fg / np.sqrt(np.einsum("ij,ij->i", fg, fg) + _TINY)[:, None]
-    return out
+    norm = np.sqrt(np.einsum("...i,...i->...", n, n) + _TINY)[..., None]
+    return np.divide(n, norm, out=np.zeros_like(n), where=np.asarray(mask)[..., None])
 
 
 def _resolve(vis, n):

@@ -115,7 +115,12 @@ def shade_sh(normals, albedo, sh):
     """
     B = sh_basis(normals)
     coef = _sh_coefficients(sh, normals)
-    irradiance = (B[..., :, None] * coef).sum(-2)
+    if coef.ndim == 2:
+        irradiance = B @ coef
+    else:  # one environment per batch item: (B, samples, 9) @ (B, 9, C)
+        n = coef.shape[0]
+        irradiance = (B.reshape(n, -1, 9) @ coef.reshape(n, 9, -1)).reshape(
+            tuple(B.shape[:-1]) + (coef.shape[-1],))
     return albedo * irradiance
 
 

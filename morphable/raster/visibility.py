@@ -145,13 +145,15 @@ class Visibility:
         s = self.supersample
         if s == 1:
             return image
-        H, W = self.image_shape
         flat = image.ndim == 2
         x = image[..., None] if flat else image
-        lead = tuple(x.shape[:-3])
-        x = x.reshape(lead + (H, s, W, s, x.shape[-1]))
-        n = len(lead)
-        out = x.mean(axis=(n + 1, n + 3)) if isinstance(x, np.ndarray) else x.mean(dim=(n + 1, n + 3))
+        # a sum of s * s strided views: several times faster than a mean over reshaped axes
+        out = None
+        for i in range(s):
+            for j in range(s):
+                part = x[..., i::s, j::s, :]
+                out = part * 1.0 if out is None else out + part
+        out = out / (s * s)
         return out[..., 0] if flat else out
 
 
