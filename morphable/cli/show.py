@@ -90,10 +90,14 @@ def run(args):
         s = read_mesh(args.scan)
         scan = (np.asarray(s.vertices), np.asarray(s.faces))
     errors = _errors(args.errors, len(vertices)) if args.errors else None
-    if args.image and not Path(args.image).is_file():
-        raise InputError(f"{args.image}: no such image")
+    image = None
+    if args.image:
+        from ..fitting.detect import read_image
+
+        # decoded here: VTK's reader crashes the process on a truncated or corrupt file
+        image = read_image(args.image)
     out = show_mesh(vertices, triangles, landmarks=landmarks, scan=scan, errors=errors,
-                    image=args.image, view=args.view, size=size, screenshot=args.screenshot,
+                    image=image, view=args.view, size=size, screenshot=args.screenshot,
                     title=path.name)
     if out:
         print(out)

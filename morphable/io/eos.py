@@ -54,7 +54,8 @@ class _Reader:
     def matrix(self) -> np.ndarray:
         rows, cols = self.scalar("i"), self.scalar("i")
         if rows < 0 or cols < 0 or rows * cols * 4 > len(self.buf) - self.pos:
-            self.fail(f"corrupt matrix header ({rows} x {cols})")
+            self.fail(f"corrupt matrix header ({rows} x {cols}: {max(rows * cols * 4, 0)} bytes, "
+                      f"{len(self.buf) - self.pos} left; truncated file?)")
         data = np.frombuffer(self.take(rows * cols * 4), dtype="<f4")
         return data.reshape(cols, rows).T  # column-major on disk
 

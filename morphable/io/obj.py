@@ -43,7 +43,7 @@ def _floats(path: Path, rows: list[str], width: int, what: str) -> np.ndarray:
     if a.ndim != 2 or a.shape[1] != width:
         raise InputError(f"{path}: {what} lines need {width} numbers")
     if not np.isfinite(a).all():
-        raise InputError(f"{path}: {what} contain NaN or inf")
+        raise InputError(f"{path}: {what} coordinates contain NaN or inf")
     return a
 
 
