@@ -201,6 +201,8 @@ def test_degenerate_inputs_raise_input_error():
         visibility(SQUARE, SQUARE_T, Camera.looking_at_face((40000, 40000)), supersample=1)
     with pytest.raises(InputError, match="out of range"):
         visibility(SQUARE, SQUARE_T + 2, cam)
+    with pytest.raises(InputError, match="focal length must be positive"):
+        visibility(SQUARE, SQUARE_T, Camera(kind="perspective", focal=0.0, translation=[0, 0, -500]))
     with pytest.raises(InputError, match="size"):
         uv_visibility(SQUARE_T, SQUARE[:, :2], size=0)
     with pytest.raises(InputError, match="SH coefficients"):

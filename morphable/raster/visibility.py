@@ -333,6 +333,10 @@ def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
     if not isinstance(camera, Camera):
         raise InputError(f"camera must be a morphable.camera.Camera, got {type(camera).__name__}")
     v, t = check_mesh(vertices, triangles)
+    k = camera.scale if camera.kind == "affine" else camera.focal
+    if not k > 0:
+        what = "scale" if camera.kind == "affine" else "focal length"
+        raise InputError(f"camera {what} must be positive, got {k}")
     try:
         s = int(supersample)
     except (TypeError, ValueError):
