@@ -207,6 +207,10 @@ def test_degenerate_inputs_raise_input_error():
         uv_visibility(SQUARE_T, SQUARE[:, :2], size=0)
     with pytest.raises(InputError, match="SH coefficients"):
         shade_sh(np.zeros((2, 3)), 1.0, np.ones(4))
+    with pytest.raises(InputError, match="colors contain NaN"):
+        render(SQUARE, SQUARE_T, cam, colors=np.full((4, 3), np.nan))
+    with pytest.raises(InputError, match="uv contain NaN"):
+        render(SQUARE, SQUARE_T, cam, texture=(np.full((4, 2), np.nan), None, np.ones((2, 2, 3))))
 
 
 def test_partially_behind_perspective_camera_clips():

@@ -156,6 +156,8 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
         tuv = t if tuv is None else np.asarray(tuv, dtype=np.int64)
         if uv.ndim != 2 or uv.shape[1] != 2 or tuv.shape != t.shape or tuv.max() >= len(uv):
             raise InputError(f"texture uv must be (T, 2) with triangle_uv {t.shape} ids into it")
+        if not np.isfinite(uv).all():
+            raise InputError("texture uv contain NaN or inf")
         uv_samples = interpolate(vis, uv, tuv)
         if _is_torch(image):  # a differentiable texture (torch (h, w, 3) in [0, 1])
             albedo = sample_texture(image, as_xp(uv_samples))
@@ -168,6 +170,8 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
     else:
         c = np.asarray(colors)
         c = c / 255.0 if c.dtype == np.uint8 else c.astype(np.float64)
+        if not np.isfinite(c).all():
+            raise InputError("colors contain NaN or inf")
         if c.shape == (3,):
             albedo = as_xp(c)
         elif c.ndim == 2 and c.shape[0] == len(v_np) and c.shape[1] in (3, 4):
