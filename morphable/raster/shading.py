@@ -84,6 +84,8 @@ def _sh_coefficients(sh, like):
         sh = torch.as_tensor(sh, dtype=like.dtype, device=like.device)
     else:
         sh = np.asarray(sh, dtype=like.dtype)
+        if not np.isfinite(sh).all():
+            raise InputError("SH coefficients contain NaN or inf")
     if sh.ndim == 1:
         sh = sh[:, None]
     if sh.ndim not in (2, 3) or sh.shape[-2] != 9:
