@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["draw_overlay", "save_overlay", "write_overlays", "check_overlay_path", "MESH_STYLES", "GIVEN_COLOR",
+__all__ = ["draw_overlay", "save_overlay", "write_overlays", "check_overlay_path", "face_box", "MESH_STYLES", "GIVEN_COLOR",
            "FITTED_COLOR"]
 
 MESH_STYLES = ("shaded", "wireframe", None)
@@ -66,7 +66,8 @@ def _pixels(points, W, H, margin):
 
 def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
                  alpha: float = 0.6, mesh_color=(0.75, 0.75, 0.75), landmarks: bool = True,
-                 radius: int | None = None, supersample: int = 2) -> np.ndarray:
+                 radius: int | None = None, supersample: int = 2,
+                 crop: float | None = None) -> np.ndarray:
     """Draw a fit over its photo.
 
     Parameters
@@ -87,10 +88,14 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
         Landmark size in pixels; default ``max(2, min(W, H) // 250)``.
     supersample : int
         Samples per pixel along each axis for the shaded mesh's edges.
+    crop : float or None
+        Cut the result to the face: the box of the projected mesh and the landmarks, widened
+        by this fraction of its size on each side (e.g. 0.2). None: the whole image, pixel
+        for pixel aligned with the photo.
 
     Returns
     -------
-    (H, W, 3) uint8
+    (H, W, 3) uint8, or the (h, w, 3) crop
 
     Raises
     ------
@@ -106,6 +111,8 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
         raise InputError(f"mesh={mesh!r}: choose from shaded, wireframe or None")
     if not 0.0 <= float(alpha) <= 1.0:
         raise InputError(f"alpha={alpha}: must be in [0, 1]")
+    if crop is not None and not (np.isfinite(crop) and crop >= 0):
+        raise InputError(f"crop={crop}: must be a margin fraction >= 0 or None")
     photo = _photo(image).astype(np.float64)
     H, W = photo.shape[:2]
     cam = result.cameras[i]
@@ -132,7 +139,7 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
             layer = Image.new("RGBA", out.size, (0, 0, 0, 0))
             draw = ImageDraw.Draw(layer)
             rgba = tuple(int(round(255 * c)) for c in np.clip(color, 0, 1)) + (int(round(255 * alpha)),)
-            for a, b in _visible_edges(triangles, vis):
+            for a, b in _visible_edges(triangles, vis):  # PIL pixel indices = our pixel centres
                 draw.line([tuple(uv[a]), tuple(uv[b])], fill=rgba, width=1)
             out = Image.alpha_composite(out.convert("RGBA"), layer).convert("RGB")
     else:
@@ -146,7 +153,32 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
             draw.line([(x - r, y + r), (x + r, y - r)], fill=GIVEN_COLOR, width=max(1, r // 2))
         for x, y in _pixels(result.fitted_landmarks[i], W, H, r):
             draw.ellipse([x - r, y - r, x + r, y + r], fill=FITTED_COLOR)
-    return np.asarray(out)
+    out = np.asarray(out)
+    if crop is not None:
+        x0, y0, x1, y1 = face_box(result, i, margin=float(crop))
+        out = out[y0:y1, x0:x1]
+    return out
+
+
+def face_box(result, frame: int = 0, margin: float = 0.2) -> tuple:
+    """Pixel box ``(x0, y0, x1, y1)`` (x1, y1 exclusive) around the projected mesh and the
+    landmarks of a frame, widened by ``margin`` times its size per side, clipped to the image.
+    """
+    i = _frame_index(result, frame)
+    cam = result.cameras[i]
+    W, H = (int(v) for v in cam.image_size)
+    pts = np.concatenate([cam.project(np.asarray(result.vertices(i), dtype=np.float64)),
+                          result.landmarks[i], result.fitted_landmarks[i]])
+    pts = pts[np.isfinite(pts).all(1)]
+    if cam.kind == "perspective":  # points behind the camera project anywhere
+        pts = pts[(pts[:, 0] > -W) & (pts[:, 0] < 2 * W) & (pts[:, 1] > -H) & (pts[:, 1] < 2 * H)]
+    if len(pts) == 0:
+        return 0, 0, W, H
+    lo, hi = pts.min(0), pts.max(0)
+    pad = margin * (hi - lo).max()
+    x0, y0 = np.clip(np.floor(lo - pad), 0, [W - 1, H - 1]).astype(int)
+    x1, y1 = np.clip(np.ceil(hi + pad) + 1, [x0 + 1, y0 + 1], [W, H]).astype(int)
+    return int(x0), int(y0), int(x1), int(y1)
 
 
 _FORMATS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}

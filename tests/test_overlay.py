@@ -125,6 +125,11 @@ def test_fit_cli_writes_the_overlay(photo_fit):
     run = lambda *a: subprocess.run([sys.executable, "-m", "morphable.cli", *map(str, a)],  # noqa: E731
                                     capture_output=True, text=True, cwd=folder)
     out = run("fit", "face.png", "--landmarks", "face.pts", "--overlay", "o.png", "--report", "r.json")
+    cut = run("fit", "face.png", "--landmarks", "face.pts", "--overlay", "c.jpg", "--overlay-crop", "0.1",
+              "--overlay-style", "wireframe")
+    assert cut.returncode == 0, cut.stderr
+    w, h = Image.open(folder / "c.jpg").size
+    assert w < img.shape[1] and h < img.shape[0]
     assert out.returncode == 0, out.stderr
     o = np.asarray(Image.open(folder / "o.png"))
     assert o.shape == img.shape
@@ -136,3 +141,22 @@ def test_fit_cli_writes_the_overlay(photo_fit):
     bad = run("fit", "face.png", "--landmarks", "face.pts", "--overlay", "x.bmp", "--report", "x.json")
     assert bad.returncode == 2 and "x.bmp: overlay must be a .png or .jpg" in bad.stderr
     assert not (folder / "x.json").exists() and "Traceback" not in bad.stderr
+
+
+def test_crop_is_the_face_box_of_the_full_overlay(photo_fit):
+    from morphable.overlay import face_box
+
+    img, res, _ = photo_fit
+    full = draw_overlay(img, res)
+    x0, y0, x1, y1 = face_box(res, margin=0.1)
+    cut = draw_overlay(img, res, crop=0.1)
+    assert np.array_equal(cut, full[y0:y1, x0:x1])
+    assert cut.shape[0] < img.shape[0] and cut.shape[1] < img.shape[1]
+    # every fitted landmark and the whole mesh lie inside the box
+    fitted = res.fitted_landmarks[0][np.isfinite(res.fitted_landmarks[0]).all(1)]
+    assert (fitted >= [x0, y0]).all() and (fitted < [x1, y1]).all()
+    changed = _changed(full, img)
+    assert changed[y0:y1, x0:x1].sum() == changed.sum()
+    assert face_box(res, margin=100.0) == (0, 0, img.shape[1], img.shape[0])  # clipped
+    with pytest.raises(InputError, match="crop=-1"):
+        draw_overlay(img, res, crop=-1)

@@ -31,6 +31,8 @@ def add_parser(sub):
                                      "(several images: NAME_0.png, NAME_1.png, ...)")
     p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
                    help="how --overlay draws the mesh (default shaded)")
+    p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
+                   help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
     return p
 
 
@@ -57,7 +59,8 @@ def run(args):
         from ..overlay import write_overlays
 
         style = None if args.overlay_style == "none" else args.overlay_style
-        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, images, mesh=style)]
+        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, images, mesh=style,
+                                                                   crop=args.overlay_crop)]
     write_fit(res, report, mesh=args.out_mesh, report_path=args.report)
     for f in report["frames"]:
         print(f"{f['image']}: landmark RMSE {f['landmark_rmse_px']:.2f} px, yaw {f['yaw_deg']:.1f}, "
