@@ -71,10 +71,14 @@ class _Batches(torch.utils.data.IterableDataset):
         self.data, self.batch_size, self.seed, self.start = data, batch_size, seed, start
 
     def __iter__(self):
-        step = self.start
+        # worker k of W renders steps start + k, start + k + W, ...; the DataLoader takes
+        # the workers in turn, so batches arrive in step order whatever W is
+        info = torch.utils.data.get_worker_info()
+        k, W = (info.id, info.num_workers) if info is not None else (0, 1)
+        step = self.start + k
         while True:
             yield self.data.sample(self.batch_size, rng=[self.seed, step], pair=True)
-            step += 1
+            step += W
 
 
 class Trainer:
@@ -228,8 +232,10 @@ class Trainer:
         return Path(path)
 
     # --- the loop -----------------------------------------------------------------------
-    def fit(self, steps=None, progress: bool = True) -> int:
-        """Train up to ``steps`` (default config.steps) total steps; returns the final step."""
+    def fit(self, steps=None, progress: bool = True, max_minutes=None) -> int:
+        """Train up to ``steps`` (default config.steps) total steps, or until ``max_minutes``
+        have passed (then a sample grid and a checkpoint are written; rerun to continue);
+        returns the final step."""
         from tqdm import tqdm
 
         cfg = self.config
@@ -240,9 +246,15 @@ class Trainer:
         bar = tqdm(total=steps, initial=self.step, disable=not progress, unit="step",
                    dynamic_ncols=True)
         logf = open(self.out / "log.jsonl", "a")
+        start = time.monotonic()
         try:
             it = iter(batches)
             while self.step < steps:
+                if max_minutes is not None and time.monotonic() - start > 60 * max_minutes:
+                    log.info("time budget of %g min reached at step %d", max_minutes, self.step)
+                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
+                    self.save()
+                    break
                 t0 = time.perf_counter()
                 terms = self.train_step(next(it))
                 terms["step"], terms["seconds"] = self.step, round(time.perf_counter() - t0, 4)
@@ -296,6 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=0, help="data-loading processes")
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
+    p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -325,7 +338,7 @@ def main(argv=None) -> int:
             if args.no_resume:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
-        trainer.fit(progress=not args.quiet)
+        trainer.fit(progress=not args.quiet, max_minutes=args.max_minutes)
         log.info("done: step %d, weights in %s", trainer.step, trainer.out / "generator.pt")
         return 0
     except MorphableError as e:

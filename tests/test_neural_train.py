@@ -101,3 +101,16 @@ def test_bad_arguments_one_line_error(tmp_path, capsys):
     assert main(["--out", str(tmp_path / "y"), "--set", "resolution"]) == 2
     assert "key=value" in capsys.readouterr().err
     assert not (tmp_path / "y").exists()
+
+
+def test_time_budget_stops_with_checkpoint(tmp_path, data_dir):
+    from neural.train import main
+
+    out = tmp_path / "budget"
+    threads = torch.get_num_threads()
+    try:
+        assert main(ARGS + ["--out", str(out), "--steps", "5", "--max-minutes", "0"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.load(out / "checkpoint.pt", weights_only=True)["step"] == 0
+    assert (out / "samples" / "step-000000.png").is_file() and _steps(out) == []

@@ -127,11 +127,14 @@ class IdentityNet(nn.Module):
     def __init__(self, width=16, dim=128):
         super().__init__()
         self.encoder = Encoder(width, 5)
-        self.fc = nn.Linear(width * 16, dim)
+        self.fc = nn.Linear(width * 16, dim, bias=False)
+        # centring the embeddings keeps them from collapsing onto one shared direction
+        # (pooled features of all faces are alike) before normalisation
+        self.norm = nn.BatchNorm1d(dim, affine=False)
 
     def forward(self, image):
         f = self.encoder(image)[-1].mean(dim=(2, 3))
-        return F.normalize(self.fc(f), dim=1, eps=1e-6)
+        return F.normalize(self.norm(self.fc(f)), dim=1, eps=1e-6)
 
 
 NETS = {"N": NormalNet, "P": MaskNet, "L": LandmarkNet, "R": IdentityNet}

@@ -6,8 +6,8 @@ pixel coverage; L mean pixel distance of the soft-argmax landmarks to the projec
 landmarks (those the 3DMM defines); R cosine-softmax classification (scale 16) over a fixed
 pool of synthetic identities whose pose, expression, light and background vary (the head
 is dropped after training). Validation metrics on a held-out batch (fresh identities for R)
-are stored in each checkpoint's ``meta``: normal error (degrees), mask IoU, landmark error
-(px), identity verification accuracy.
+are stored in each checkpoint's ``meta["metrics"]``: normal error (degrees), mask IoU,
+landmark error (px), identity verification AUC. ``--nets R`` trains a subset.
 """
 from __future__ import annotations
 
@@ -35,15 +35,18 @@ class AuxTrainer:
     """Joint training of N, P, L, R on one stream of synthetic batches."""
 
     def __init__(self, resolution=64, width=16, n_identities=500, batch_size=16, lr=2e-3,
-                 seed=0, model="sfm"):
+                 seed=0, model="sfm", nets=NAMES):
         from ..data import SyntheticFaces
 
         torch.manual_seed(seed)
         self.width, self.batch_size, self.seed = width, batch_size, seed
-        self.nets = {n: build_aux(n, width) for n in NAMES}
-        dim = self.nets["R"].fc.out_features
-        self.id_head = torch.nn.Parameter(torch.randn(n_identities, dim) * 0.01)
-        params = [p for net in self.nets.values() for p in net.parameters()] + [self.id_head]
+        self.names = tuple(nets)
+        self.nets = {n: build_aux(n, width) for n in self.names}
+        params = [p for net in self.nets.values() for p in net.parameters()]
+        if "R" in self.nets:
+            dim = self.nets["R"].fc.out_features
+            self.id_head = torch.nn.Parameter(torch.randn(n_identities, dim) * 0.01)
+            params.append(self.id_head)
         self.opt = torch.optim.Adam(params, lr=lr)
         self.data = SyntheticFaces(model=model, resolution=resolution, n_identities=n_identities,
                                    seed=seed)
@@ -54,17 +57,21 @@ class AuxTrainer:
 
     def losses(self, batch) -> dict:
         img, mask = batch["image"], batch["mask"]
-        face = (mask > 0.5).to(img.dtype)
-        n_hat = self.nets["N"](img)
-        cos = (n_hat * batch["normals"]).sum(1, keepdim=True)
-        out = {"N": ((1 - cos) * face).sum() / face.sum().clamp_min(1)}
-        out["P"] = F.binary_cross_entropy_with_logits(self.nets["P"].logits(img), mask)
-        lm = self.nets["L"].landmarks(img)[:, self.landmark_index]
-        target = batch["landmarks"][:, self.landmark_index]
-        out["L"] = ((lm - target).pow(2).sum(-1) + 1e-8).sqrt().mean()
-        emb = self.nets["R"](img)
-        logits = 16.0 * emb @ F.normalize(self.id_head, dim=1).T
-        out["R"] = F.cross_entropy(logits, batch["identity_id"])
+        out = {}
+        if "N" in self.nets:
+            face = (mask > 0.5).to(img.dtype)
+            cos = (self.nets["N"](img) * batch["normals"]).sum(1, keepdim=True)
+            out["N"] = ((1 - cos) * face).sum() / face.sum().clamp_min(1)
+        if "P" in self.nets:
+            out["P"] = F.binary_cross_entropy_with_logits(self.nets["P"].logits(img), mask)
+        if "L" in self.nets:
+            lm = self.nets["L"].landmarks(img)[:, self.landmark_index]
+            target = batch["landmarks"][:, self.landmark_index]
+            out["L"] = ((lm - target).pow(2).sum(-1) + 1e-8).sqrt().mean()
+        if "R" in self.nets:
+            emb = self.nets["R"](img)
+            logits = 16.0 * emb @ F.normalize(self.id_head, dim=1).T
+            out["R"] = F.cross_entropy(logits, batch["identity_id"])
         return out
 
     def train_step(self) -> dict:
@@ -73,7 +80,7 @@ class AuxTrainer:
         batch = self.data.sample(self.batch_size, rng=[self.seed, self.step])
         terms = self.losses(batch)
         # the landmark term is in pixels: divide by 10 to put it on the others' scale
-        total = terms["N"] + terms["P"] + 0.1 * terms["L"] + terms["R"]
+        total = sum(0.1 * v if k == "L" else v for k, v in terms.items())
         self.opt.zero_grad(set_to_none=True)
         total.backward()
         self.opt.step()
@@ -82,36 +89,45 @@ class AuxTrainer:
 
     @torch.no_grad()
     def validate(self, n: int = 32) -> dict:
-        """Metrics on held-out renders (fresh seeds; R on unseen identities)."""
+        """Metrics on held-out renders (unseen seeds; R on unseen identities), per network."""
         for net in self.nets.values():
             net.eval()
         b = self.data.sample(n, rng=[self.seed, 2**31])
         face = b["mask"][:, 0] > 0.5
-        cos = (self.nets["N"](b["image"]) * b["normals"]).sum(1).clamp(-1, 1)
-        pred = self.nets["P"](b["image"])[:, 0] > 0.5
-        iou = (pred & face).sum() / (pred | face).sum().clamp_min(1)
-        lm = self.nets["L"].landmarks(b["image"])[:, self.landmark_index]
-        lm_err = (lm - b["landmarks"][:, self.landmark_index]).norm(dim=-1).mean()
-        # verification: pairs of the same unseen identity vs different ones, threshold at
-        # the midpoint of the two mean similarities
-        p = self.fresh.sample(n, rng=[self.seed, 2**31 + 1], pair=True)
-        ea, eb = self.nets["R"](p["image"]), self.nets["R"](p["image_b"])
-        same = (ea * eb).sum(1)
-        diff = (ea * eb.roll(1, 0)).sum(1)[p["identity_id"] != p["identity_id"].roll(1, 0)]
-        thr = (same.mean() + diff.mean()) / 2
-        acc = torch.cat([same > thr, diff <= thr]).float().mean()
-        return {"normal_error_deg": float(torch.rad2deg(torch.acos(cos[face])).mean()),
-                "mask_iou": float(iou), "landmark_error_px": float(lm_err),
-                "identity_verification_acc": float(acc),
-                "identity_cos_same": float(same.mean()), "identity_cos_diff": float(diff.mean())}
+        out = {}
+        if "N" in self.nets:
+            cos = (self.nets["N"](b["image"]) * b["normals"]).sum(1).clamp(-1, 1)
+            out["N"] = {"normal_error_deg": float(torch.rad2deg(torch.acos(cos[face])).mean())}
+        if "P" in self.nets:
+            pred = self.nets["P"](b["image"])[:, 0] > 0.5
+            out["P"] = {"mask_iou": float((pred & face).sum() / (pred | face).sum().clamp_min(1))}
+        if "L" in self.nets:
+            lm = self.nets["L"].landmarks(b["image"])[:, self.landmark_index]
+            err = (lm - b["landmarks"][:, self.landmark_index]).norm(dim=-1).mean()
+            out["L"] = {"landmark_error_px": float(err)}
+        if "R" in self.nets:
+            # verification on unseen identities: the AUC of same-identity pairs (two views)
+            # against different-identity pairs
+            p = self.fresh.sample(n, rng=[self.seed, 2**31 + 1], pair=True)
+            ea, eb = self.nets["R"](p["image"]), self.nets["R"](p["image_b"])
+            same = (ea * eb).sum(1)
+            sim = ea @ eb.T
+            other = p["identity_id"][:, None] != p["identity_id"][None, :]
+            diff = sim[other]
+            auc = (same[:, None] > diff[None, :]).float().mean()
+            out["R"] = {"identity_verification_auc": float(auc),
+                        "identity_cos_same": float(same.mean()),
+                        "identity_cos_diff": float(diff.mean())}
+        return out
 
     def save(self, out, metrics=None) -> list:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         meta = {"steps": self.step, "batch_size": self.batch_size,
                 "resolution": self.data.resolution, "model": self.data.model.name,
-                "metrics": metrics or {}}
-        return [save_aux(self.nets[n], n, out / f"aux_{n}.pt", self.width, **meta) for n in NAMES]
+                "training_data": "SyntheticFaces (SFM, procedural albedo, SH light)"}
+        return [save_aux(self.nets[n], n, out / f"aux_{n}.pt", self.width,
+                         metrics=(metrics or {}).get(n, {}), **meta) for n in self.names]
 
 
 def main(argv=None) -> int:
@@ -124,6 +140,7 @@ def main(argv=None) -> int:
     p.add_argument("--identities", type=int, default=500)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--save-every", type=int, default=200)
+    p.add_argument("--nets", default="NPLR", help="which networks to train, e.g. R")
     p.add_argument("--threads", type=int)
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -133,8 +150,11 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
+        unknown = set(args.nets) - set(NAMES)
+        if unknown or not args.nets:
+            raise MorphableError(f"--nets: choose letters from {''.join(NAMES)}, got {args.nets!r}")
         t = AuxTrainer(args.resolution, args.width, args.identities, args.batch_size,
-                       seed=args.seed)
+                       seed=args.seed, nets=tuple(dict.fromkeys(args.nets)))
         t0 = time.time()
         with tqdm(total=args.steps, disable=args.quiet, unit="step") as bar:
             while t.step < args.steps:
@@ -144,7 +164,8 @@ def main(argv=None) -> int:
                 if t.step % args.save_every == 0 and t.step < args.steps:
                     t.save(args.out)
         metrics = t.validate()
-        metrics["train_seconds"] = round(time.time() - t0, 1)
+        for m in metrics.values():
+            m["train_seconds"] = round(time.time() - t0, 1)
         t.save(args.out, metrics)
         print(json.dumps(metrics, indent=1))
         return 0
