@@ -350,11 +350,12 @@ class AlignedImageFolder(torch.utils.data.Dataset):
         return align_image(img, lm, R, self.model)
 
     def __getitem__(self, i):
-        img = self.load(i)
-        if img is None:
-            # no face: fall back on the next image so that a DataLoader never sees None
-            return self[(i + 1) % len(self)]
-        return torch.as_tensor(img.transpose(2, 0, 1).copy(), dtype=torch.float32) / 127.5 - 1
+        # no face: fall back on the next image so that a DataLoader never sees None
+        for k in range(len(self)):
+            img = self.load((i + k) % len(self))
+            if img is not None:
+                return torch.as_tensor(img.transpose(2, 0, 1).copy(), dtype=torch.float32) / 127.5 - 1
+        raise InputError(f"{self.root}: no face found in any image")
 
 
 def prepare_folder(src, dst, resolution: int = 256, model: str = "sfm") -> int:
