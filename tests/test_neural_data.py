@@ -98,3 +98,15 @@ def test_align_real_photo(data_dir, tmp_path):
     assert len(folder) == 1 and x.shape == (3, 64, 64) and -1 <= float(x.min()) < float(x.max()) <= 1
     with pytest.raises(InputError, match="no images"):
         AlignedImageFolder(tmp_path / "empty" if (tmp_path / "empty").mkdir() is None else None)
+
+
+def test_folder_without_faces(tmp_path):
+    pytest.importorskip("dlib")
+    pytest.importorskip("face_recognition_models")
+    from PIL import Image
+
+    Image.new("RGB", (80, 80), (128, 128, 128)).save(tmp_path / "grey.png")
+    folder = AlignedImageFolder(tmp_path, 32)
+    assert folder.load(0) is None
+    with pytest.raises(InputError, match="no face found"):
+        folder[0]
