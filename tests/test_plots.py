@@ -115,3 +115,18 @@ def test_cli_plot(tmp_path):
     bad = run("plot", "f.json", "--out", "m.bmp")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert not (tmp_path / "m.png").exists() and not (tmp_path / "m.bmp").exists()
+
+
+def test_readme_pictures_are_committed_small_and_drawn():
+    import re
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    names = set(re.findall(r"docs/img/[\w.-]+\.png", (repo / "README.md").read_text()))
+    assert len(names) >= 4
+    for name in names:
+        path = repo / name
+        assert path.is_file() and path.stat().st_size < 300_000, name
+        img = _pixels(path)
+        # not blank: a good share of non-white pixels and more than a handful of colours
+        assert (img < 240).any(-1).mean() > 0.05 and len(np.unique(img.reshape(-1, 3) // 16, axis=0)) > 20
