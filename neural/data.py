@@ -283,34 +283,12 @@ def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> n
     return np.asarray(out)
 
 
-def _detector():
-    import dlib
-    import face_recognition_models
-
-    return (dlib.get_frontal_face_detector(),
-            dlib.shape_predictor(face_recognition_models.pose_predictor_model_location()))
-
-
-def detect_landmarks(image) -> np.ndarray | None:
-    """(68, 2) pixels of the largest face dlib finds in an (H, W, 3) uint8 image, or None."""
-    detect, predict = _detector_cached()
-    faces = detect(np.asarray(image), 1)
-    if not faces:
-        return None
-    face = max(faces, key=lambda r: r.area())
-    shape = predict(np.asarray(image), face)
-    return np.array([[p.x, p.y] for p in shape.parts()], dtype=np.float64)
-
-
-_detector_cached = lru_cache(maxsize=1)(_detector)
-
-
 class AlignedImageFolder(torch.utils.data.Dataset):
     """Face photos of a folder, aligned to :func:`template`, as (3, R, R) tensors in [-1, 1].
 
     Landmarks come from ``<image>.pts`` beside each image (iBUG format, 1-based) when it
-    exists, else from dlib's 68-point detector; images without a face are skipped when the
-    folder is indexed. With ``aligned=True`` the images are taken as already aligned (e.g.
+    exists, else from dlib's 68-point detector (:func:`morphable.fitting.detect.detect_landmarks`);
+    an image without a face is replaced by the next one that has one. With ``aligned=True`` the images are taken as already aligned (e.g.
     the output of :func:`prepare_folder`) and only resized.
     """
 
@@ -344,8 +322,12 @@ class AlignedImageFolder(torch.utils.data.Dataset):
 
             lm = read_pts(pts)
         else:
-            lm = detect_landmarks(np.asarray(img))
-            if lm is None:
+            from morphable.errors import FitError
+            from morphable.fitting.detect import detect_landmarks
+
+            try:
+                lm = detect_landmarks(np.asarray(img))
+            except FitError:
                 return None
         return align_image(img, lm, R, self.model)
 
