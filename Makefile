@@ -32,8 +32,8 @@ demo: $(STAMP)
 	$(BIN)/morphable sample --model sfm --identity-std 1 --expression happiness=0.8 --out $(OUT)/sample.obj
 	$(BIN)/morphable info --model sfm --json > $(OUT)/model.json
 	$(BIN)/morphable fit $(DATA)/images/image_0010.png --landmarks $(DATA)/images/image_0010.pts \
-		--model sfm --out-mesh $(OUT)/fit.obj --report $(OUT)/fit.json
-	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json $(OUT)/fit.obj $(OUT)/fit.json"
+		--model sfm --out-mesh $(OUT)/fit.obj --report $(OUT)/fit.json --overlay $(OUT)/overlay.png
+	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json $(OUT)/fit.obj $(OUT)/fit.json $(OUT)/overlay.png"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -138,6 +138,13 @@ def test_fit_cli_writes_the_overlay(photo_fit):
     fitted = res.fitted_landmarks[0][np.isfinite(res.fitted_landmarks[0]).all(1)]
     ys, xs = np.round(fitted[:, 1]).astype(int), np.round(fitted[:, 0]).astype(int)
     assert red[ys, xs].mean() > 0.95  # same fit, same pixels
+    two = run("fit", "face.png", "face.png", "--landmarks", "face.pts", "face.pts", "--overlay", "t.png",
+              "--overlay-style", "none")
+    assert two.returncode == 0, two.stderr
+    for name in ("t_0.png", "t_1.png"):  # one overlay per image
+        t = np.asarray(Image.open(folder / name))
+        assert t.shape == img.shape and np.all(t == FITTED_COLOR, -1).sum() > 40
+    assert not (folder / "t.png").exists()
     bad = run("fit", "face.png", "--landmarks", "face.pts", "--overlay", "x.bmp", "--report", "x.json")
     assert bad.returncode == 2 and "x.bmp: overlay must be a .png or .jpg" in bad.stderr
     assert not (folder / "x.json").exists() and "Traceback" not in bad.stderr
