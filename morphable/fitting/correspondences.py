@@ -246,6 +246,27 @@ class Correspondences:
         out[:, cols] = res
         return out
 
+    def gather_coordinates(self, rows: np.ndarray, cols=None, out=None) -> np.ndarray:
+        """Like :meth:`gather_static` for coordinate-major rows ``(3, R, k)`` -> ``(N, 3, 68, k)``
+        (all three coordinates in one pass); with ``cols`` only those landmarks, into ``out``."""
+        a, b, w = self.a, self.b, self.w
+        if cols is not None:
+            a, b, w = a[:, cols], b[:, cols], w[:, cols]
+        res = rows[:, np.maximum(a, 0)]                      # (3, N, J, k)
+        moving = w != 0
+        if moving.any():
+            n, j = np.nonzero(moving)
+            wm = w[n, j][None, :, None]
+            res[:, n, j] = (1 - wm) * res[:, n, j] + wm * rows[:, b[n, j]]
+        bad = a < 0
+        if bad.any():
+            res[:, bad] = 0.0
+        res = res.transpose(1, 0, 2, 3)
+        if cols is None:
+            return np.ascontiguousarray(res)
+        out[:, :, cols] = res
+        return out
+
     def vertex_ids(self, bank: LandmarkBank) -> np.ndarray:
         """(N, 68) the nearest model vertex of each correspondence, -1 where none."""
         r = np.where(self.w < 0.5, self.a, self.b)

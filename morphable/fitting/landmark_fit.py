@@ -94,17 +94,10 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
         if pb.sliding.size:
             c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
             for src, dst in zip((pb.AT, pb.BT), st.rows[1:]):
-                for k in range(3):
-                    c.gather_static(src[k], pb.sliding, dst[:, k])
+                c.gather_coordinates(src, pb.sliding, dst)
         return
     # identity and expression rows coordinate-major, (N, 3, 68, k): projections are one GEMM
-    rows = [c.gather_static(pb.bank.mean)]
-    for src in (pb.AT, pb.BT):
-        out = np.empty((pb.N, 3, 68, src.shape[-1]))
-        for k in range(3):
-            out[:, k] = c.gather_static(src[k])
-        rows.append(out)
-    st.rows = tuple(rows)
+    st.rows = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT), c.gather_coordinates(pb.BT))
 
 
 def _combine(rows, coeffs):
@@ -180,7 +173,7 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
     _gather(pb, st)
     for it in range(max(n_linear, 1)):
         st.alpha, st.beta = alpha, beta
-        R, t, s = estimate_affine_pose(_points(pb, st), pb.y, W0, pb.principal)
+        R, t, s = estimate_affine_pose(_points(pb, st), pb.y, W0, pb.principal, check=it == 0)
         st.R, st.t, st.k = R, t, s
         _slide(pb, st)
         _gather(pb, st, sliding_only=True)

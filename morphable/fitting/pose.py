@@ -17,7 +17,7 @@ __all__ = ["estimate_affine_pose", "project", "rotate"]
 MIN_DEPTH_MM = 1e-3
 
 
-def estimate_affine_pose(points3d, points2d, weights, principal):
+def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = True):
     """Scaled orthographic pose from 2D-3D correspondences (linear, eos / Hartley-Zisserman).
 
     A 2x4 affine camera is fitted by weighted least squares on normalised coordinates, then
@@ -29,6 +29,9 @@ def estimate_affine_pose(points3d, points2d, weights, principal):
     points2d : (N, L, 2) pixels
     weights : (N, L) >= 0 (0 = unused)
     principal : (N, 2) pixels
+    check : bool
+        Test the point sets for coincident or collinear points (callers that re-estimate
+        with the same landmarks test once).
 
     Returns
     -------
@@ -52,8 +55,9 @@ def estimate_affine_pose(points3d, points2d, weights, principal):
     Xc, yc = X - mx, y - my
     sx = np.sqrt((w * (Xc ** 2).sum(-1)).sum(1) / wsum[:, 0])
     sy = np.sqrt((w * (yc ** 2).sum(-1)).sum(1) / wsum[:, 0])
-    _check_spread(yc, w, sy, "image")
-    _check_spread(Xc, w, sx, "model")
+    if check:
+        _check_spread(yc, w, sy, "image")
+        _check_spread(Xc, w, sx, "model")
     Xn = Xc / sx[:, None, None]
     yn = yc / sy[:, None, None]
     # centred data: the translation of the affine camera is zero, solve y = M X for M (2x3)
