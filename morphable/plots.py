@@ -14,9 +14,10 @@ state, no display needed) and written atomically; every function returns the pat
 
 Examples
 --------
+>>> import tempfile
 >>> report = {"methods": {"ours": {"indoor": {"mean_mm": 1.2, "std_mm": 0.8}},
 ...                       "eos": {"indoor": {"mean_mm": 0.9, "std_mm": 0.6}}}}
->>> condition_bars(report, "/tmp/bars.png").name
+>>> condition_bars(report, Path(tempfile.mkdtemp()) / "bars.png").name
 'bars.png'
 """
 from __future__ import annotations
