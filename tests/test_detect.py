@@ -60,4 +60,4 @@ def test_cli_fit_detects_when_no_landmarks_given(takeo, tmp_path):
     report = tmp_path / "fit.json"
     assert main(["fit", str(takeo), "--report", str(report)]) == 0
     rep = json.loads(report.read_text())
-    assert rep["landmarks"] == "dlib hog" and rep["frames"][0]["landmark_rmse_px"] < 10
+    assert "dlib hog" in str(rep["landmarks"]) and rep["frames"][0]["landmark_rmse_px"] < 10
