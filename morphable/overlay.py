@@ -48,6 +48,24 @@ def _frame_index(result, frame: int) -> int:
     return int(frame) % n
 
 
+def _window(cam, vertices):
+    """The camera restricted to the pixels the mesh can cover -> (camera, (x0, y0, x1, y1)),
+    or None when the mesh projects outside the image. Rendering the window instead of the
+    whole photo keeps the cost proportional to the face, not to the photo."""
+    from dataclasses import replace
+
+    W, H = cam.image_size
+    if cam.kind == "perspective" and (cam.depth(vertices) <= 0).any():
+        return cam, (0, 0, W, H)  # points at or behind the camera: no finite bound
+    p = cam.project(vertices)
+    x0, y0 = np.maximum(np.floor(p.min(0)).astype(int) - 2, 0)
+    x1, y1 = np.minimum(np.ceil(p.max(0)).astype(int) + 3, [W, H])
+    if x1 <= x0 or y1 <= y0:
+        return None
+    sub = replace(cam, image_size=(int(x1 - x0), int(y1 - y0)), principal=cam.principal - [x0, y0])
+    return sub, (int(x0), int(y0), int(x1), int(y1))
+
+
 def _visible_edges(triangles, vis) -> np.ndarray:
     """(M, 2) vertex-id pairs of the edges of the triangles seen by at least one sample."""
     seen = np.unique(vis.triangle_id[vis.mask])
@@ -123,18 +141,21 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
     if color.shape != (3,) or not np.isfinite(color).all():
         raise InputError(f"mesh_color must be 3 numbers in [0, 1], got {mesh_color}")
     out = photo
-    if mesh is not None:
-        vertices = np.asarray(result.vertices(i), dtype=np.float64)
+    vertices = np.asarray(result.vertices(i), dtype=np.float64)
+    window = _window(cam, vertices) if mesh is not None else None
+    if window is not None:
+        sub, (x0, y0, x1, y1) = window
         triangles = np.asarray(result.model.triangles)
         if mesh == "shaded":
-            vis = visibility(vertices, triangles, cam, supersample=max(1, int(supersample)))
+            vis = visibility(vertices, triangles, sub, supersample=max(1, int(supersample)))
             # black background: the render is the mesh premultiplied by its pixel coverage
             shaded = render(vertices, triangles, vis=vis, colors=color, background=(0.0, 0.0, 0.0))
             cover = alpha * vis.coverage()[..., None]
-            out = photo * (1.0 - cover) + alpha * shaded
+            out = photo.copy()
+            out[y0:y1, x0:x1] = photo[y0:y1, x0:x1] * (1.0 - cover) + alpha * shaded
         out = Image.fromarray(np.round(255 * np.clip(out, 0, 1)).astype(np.uint8))
         if mesh == "wireframe":
-            vis = visibility(vertices, triangles, cam)
+            vis = visibility(vertices, triangles, sub)
             uv = cam.project(vertices)
             layer = Image.new("RGBA", out.size, (0, 0, 0, 0))
             draw = ImageDraw.Draw(layer)
@@ -142,7 +163,7 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
             for a, b in _visible_edges(triangles, vis):  # PIL pixel indices = our pixel centres
                 draw.line([tuple(uv[a]), tuple(uv[b])], fill=rgba, width=1)
             out = Image.alpha_composite(out.convert("RGBA"), layer).convert("RGB")
-    else:
+    else:  # no mesh, or a mesh outside the image
         out = Image.fromarray(np.round(255 * np.clip(out, 0, 1)).astype(np.uint8))
     if landmarks:
         r = int(radius) if radius is not None else max(2, min(W, H) // 250)
