@@ -319,7 +319,7 @@ for step in range(40):
     loss = (G(n0, z_hat, noise="zero") - target).abs().mean()
     loss.backward()
     opt.step()
-    losses.append(float(loss))
+    losses.append(float(loss.detach()))
 with torch.no_grad():
     recon = G(n0, z_hat, noise="zero")
 print(f"L1 {losses[0]:.4f} -> {losses[-1]:.4f} in {len(losses)} steps")
