@@ -85,17 +85,15 @@ assert fit.landmark_rmse_px[0] < 15'''),
                           "(`morphable.raster`), shaded and as a wireframe; green crosses: the detected "
                           "landmarks, red discs: the fitted model points."),
         new_code_cell('''\
-from morphable.overlay import draw_overlay, save_overlay
+from morphable.overlay import draw_overlay, face_box, save_overlay
 
-shaded = draw_overlay(photo, fit, mesh="shaded")
-wire = draw_overlay(photo, fit, mesh="wireframe", alpha=0.8)
-lm = fit.landmarks[0]
-x0, y0 = np.nanmin(lm, 0) - 120
-x1, y1 = np.nanmax(lm, 0) + 120
-crop = np.s_[max(0, int(y0)):int(y1), max(0, int(x0)):int(x1)]
+# crop=0.15: cut to the face box (mesh and landmarks) widened by 15 % of its size per side
+shaded = draw_overlay(photo, fit, mesh="shaded", crop=0.15)
+wire = draw_overlay(photo, fit, mesh="wireframe", alpha=0.8, crop=0.15)
+x0, y0, x1, y1 = face_box(fit, margin=0.15)
 fig, axes = plt.subplots(1, 3, figsize=(12, 5))
-for ax, img, title in zip(axes, (photo, shaded, wire), ("photo", "shaded fit", "wireframe")):
-    ax.imshow(img[crop])
+for ax, img, title in zip(axes, (photo[y0:y1, x0:x1], shaded, wire), ("photo", "shaded fit", "wireframe")):
+    ax.imshow(img)
     ax.set_title(title)
     ax.axis("off")
 plt.show()
