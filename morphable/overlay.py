@@ -38,6 +38,12 @@ def _photo(image) -> np.ndarray:
     """Path or array -> (H, W, 3) float32 in [0, 1] (the raster module's reader)."""
     from .raster import as_texture
 
+    if not isinstance(image, (str, bytes)) and not hasattr(image, "__fspath__"):
+        a = np.asarray(image)
+        if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (3, 4)) or a.size == 0:
+            raise InputError(f"image must be (H, W), (H, W, 3) or (H, W, 4), got shape {a.shape}")
+        if a.dtype.kind not in "uif" or (a.dtype.kind == "f" and not np.isfinite(a).all()):
+            raise InputError(f"image must hold finite numbers, got {a.dtype} with NaN/inf or objects")
     return as_texture(image)
 
 

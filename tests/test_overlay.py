@@ -107,6 +107,16 @@ def test_bad_inputs(photo_fit, tmp_path):
     img, res, _ = photo_fit
     with pytest.raises(InputError, match="image is 100x80"):
         draw_overlay(np.zeros((80, 100, 3), np.uint8), res)
+    with pytest.raises(InputError, match="got shape"):
+        draw_overlay(np.zeros((256, 320, 2)), res)
+    nan = img / 255.0
+    nan[0, 0, 0] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        draw_overlay(nan, res)
+    grey = draw_overlay(img.mean(-1).astype(np.uint8), res, mesh=None)  # (H, W) photos work
+    assert grey.shape == img.shape
+    with pytest.raises(InputError, match="nothing.png: cannot read image"):
+        draw_overlay(tmp_path / "nothing.png", res)
     with pytest.raises(InputError, match="frame 3"):
         draw_overlay(img, res, frame=3)
     with pytest.raises(InputError, match="mesh="):
