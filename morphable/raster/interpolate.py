@@ -23,27 +23,28 @@ def _is_torch(x) -> bool:
     return type(x).__module__.split(".")[0] == "torch"
 
 
-def _interpolate_numpy(vis: Visibility, attributes, triangles):
+def _interpolate_numpy(vis: Visibility, attributes, triangles, foreground):
     a = np.asarray(attributes)
     flat = a.ndim == 1
     a = a[:, None] if flat else a
     if a.ndim != 2:
         raise InputError(f"numpy attributes must be (V, C) or (V,), got {a.shape}")
     dtype = np.result_type(a.dtype, np.float32)
-    out = vis.matrix(len(a), triangles, dtype) @ a.astype(dtype, copy=False)
-    out = out.reshape(vis.shape + (a.shape[1],))
+    out = vis.matrix(len(a), triangles, dtype, foreground) @ a.astype(dtype, copy=False)
+    if not foreground:
+        out = out.reshape(vis.shape + (a.shape[1],))
     return out[..., 0] if flat else out
 
 
-def _torch_matrices(vis: Visibility, n_rows, triangles, dtype, device):
+def _torch_matrices(vis: Visibility, n_rows, triangles, dtype, device, foreground=False):
     import torch
 
     key = ("torch", n_rows, None if triangles is None else _key(np.asarray(triangles)), str(dtype),
-           str(device))
+           str(device), foreground)
     if key not in vis._extra:
         import warnings
 
-        m = vis.matrix(n_rows, triangles, np.float64)
+        m = vis.matrix(n_rows, triangles, np.float64, foreground)
         with warnings.catch_warnings():  # sparse CSR support is flagged beta in torch
             warnings.simplefilter("ignore")
             pair = []
@@ -78,22 +79,23 @@ def _sparse_apply():
 _SPARSE_APPLY = []
 
 
-def _interpolate_torch(vis: Visibility, attributes, triangles):
+def _interpolate_torch(vis: Visibility, attributes, triangles, foreground):
     a = attributes
     if a.ndim not in (2, 3):
         raise InputError(f"torch attributes must be (V, C) or (B, V, C), got {tuple(a.shape)}")
     if not _SPARSE_APPLY:
         _SPARSE_APPLY.append(_sparse_apply())
-    m, mt = _torch_matrices(vis, a.shape[-2], triangles, a.dtype, a.device)
+    m, mt = _torch_matrices(vis, a.shape[-2], triangles, a.dtype, a.device, foreground)
+    grid = (len(vis.pixels),) if foreground else tuple(vis.shape)
     if a.ndim == 3:  # (B, V, C) -> (V, B * C): one sparse product for the whole batch
         B, V, C = a.shape
         x = a.permute(1, 0, 2).reshape(V, B * C)
-        y = _SPARSE_APPLY[0].apply(x, m, mt)
-        return y.reshape(tuple(vis.shape) + (B, C)).permute(2, 0, 1, 3)
-    return _SPARSE_APPLY[0].apply(a.contiguous(), m, mt).reshape(tuple(vis.shape) + (a.shape[-1],))
+        y = _SPARSE_APPLY[0].apply(x, m, mt).reshape(grid + (B, C))
+        return y.permute(len(grid), *range(len(grid)), len(grid) + 1)
+    return _SPARSE_APPLY[0].apply(a.contiguous(), m, mt).reshape(grid + (a.shape[-1],))
 
 
-def interpolate(vis, attributes, triangles=None):
+def interpolate(vis, attributes, triangles=None, foreground: bool = False):
     """Interpolate per-vertex attributes at every sample of a visibility.
 
     Parameters
@@ -104,6 +106,9 @@ def interpolate(vis, attributes, triangles=None):
     triangles : (F, 3) int or None
         Corner ids to look the rows up with; default ``vis.triangles``. Pass a
         ``triangle_uv`` table to interpolate per-corner texture coordinates.
+    foreground : bool
+        Return only the foreground samples, in the order of ``vis.pixels``: (N, C) or
+        (B, N, C) instead of the whole grid (not with a list of visibilities).
 
     Returns
     -------
@@ -122,11 +127,14 @@ def interpolate(vis, attributes, triangles=None):
         if not _is_torch(attributes) or attributes.ndim != 3 or attributes.shape[0] != len(vis):
             raise InputError("a list of visibilities needs a torch (B, V, C) tensor with B = "
                              "len(list)")
+        if foreground:
+            raise InputError("foreground=True needs one visibility, not a list")
         import torch
 
-        return torch.stack([_interpolate_torch(v, a, triangles) for v, a in zip(vis, attributes)])
+        return torch.stack([_interpolate_torch(v, a, triangles, False)
+                            for v, a in zip(vis, attributes)])
     if not isinstance(vis, Visibility):
         raise InputError(f"vis must be a Visibility, got {type(vis).__name__}")
     if _is_torch(attributes):
-        return _interpolate_torch(vis, attributes, triangles)
-    return _interpolate_numpy(vis, attributes, triangles)
+        return _interpolate_torch(vis, attributes, triangles, foreground)
+    return _interpolate_numpy(vis, attributes, triangles, foreground)

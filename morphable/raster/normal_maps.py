@@ -132,7 +132,7 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
     return _resolve(vis, _interpolated_normals(vertices, tri, vis, frame, rotation, weighting))
 
 
-def _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting):
+def _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting, foreground=False):
     n = vertex_normals(vertices, triangles, weighting=weighting)
     if frame == "camera":
         # rotation and interpolation are linear: rotating the V vertex normals is cheaper
@@ -143,7 +143,7 @@ def _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting):
         elif not _is_torch(n) and np.ndim(R) == 3 and n.ndim == 2:
             n = np.broadcast_to(n, (len(R),) + n.shape)
         n = _rotate(n, R)
-    return interpolate(vis, n)
+    return interpolate(vis, n, foreground=foreground)
 
 
 def camera_rotation(vis, rotation=None):
@@ -156,14 +156,19 @@ def camera_rotation(vis, rotation=None):
     return vis.camera.rotation
 
 
-def sample_normals(vertices, triangles, vis, frame="camera", rotation=None, weighting="area"):
+def sample_normals(vertices, triangles, vis, frame="camera", rotation=None, weighting="area",
+                   foreground=False):
     """Unit normals on the sample grid of ``vis`` (no downsampling), zero on background.
 
     ``vertices`` (V, 3) numpy or torch (V, 3) / (B, V, 3); ``triangles`` (F, 3) numpy or
-    tensor; returns (Hs, Ws, 3) or (B, Hs, Ws, 3).
+    tensor; returns (Hs, Ws, 3) or (B, Hs, Ws, 3); with ``foreground=True`` only the samples
+    ``vis.pixels``: (N, 3) or (B, N, 3).
     """
-    n = _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting)
-    mask = np.stack([v.mask for v in vis]) if isinstance(vis, (list, tuple)) else vis.mask
+    n = _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting, foreground)
+    if foreground:
+        mask = np.ones(n.shape[:-1], dtype=bool)
+    else:
+        mask = np.stack([v.mask for v in vis]) if isinstance(vis, (list, tuple)) else vis.mask
     return _normalize(n, mask)
 
 

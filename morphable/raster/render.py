@@ -58,20 +58,19 @@ def _background(background, vis, like):
 
 
 def _shadow_mask(v, t, vis, light_dirs_world, normals_world):
-    """(L, Hs, Ws) float: 1 where a sample sees light l (no occluder towards it)."""
+    """(L, N) float: 1 where foreground sample n sees light l (no occluder towards it);
+    ``normals_world`` (N, 3) are the samples' normals."""
     sc = scene(v, t)
-    p = interpolate(vis, v)[vis.mask]
-    ng = normals_world[vis.mask]
+    p = interpolate(vis, v, foreground=True)
+    ng = normals_world
     eps = 1e-3 * float(np.linalg.norm(v.max(0) - v.min(0)))
-    out = np.ones((len(light_dirs_world),) + vis.shape)
+    out = np.ones((len(light_dirs_world), len(p)))
     for i, d in enumerate(light_dirs_world):
         # start a little off the surface on the lit side to avoid hitting the own triangle
         side = np.where((ng @ d)[:, None] >= 0, ng, -ng)
         origins = p + eps * (side + d)
         t_hit, _, _ = cast(sc, np.concatenate([origins, np.broadcast_to(d, origins.shape)], -1))
-        lit = np.ones(vis.shape)
-        lit[vis.mask] = ~np.isfinite(t_hit)
-        out[i] = lit
+        out[i] = ~np.isfinite(t_hit)
     return out
 
 
@@ -138,11 +137,14 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
             raise InputError("render takes one mesh (V, 3); batch with a loop or use "
                              "interpolate/shade_sh directly")
         tri = torch.as_tensor(t, device=vertices.device)
-        n = sample_normals(vertices, tri, vis)
+        # shading runs on the foreground samples only; the background is composited after
+        n = sample_normals(vertices, tri, vis, foreground=True)
+
         def as_xp(a):
             return torch.as_tensor(np.array(a), dtype=vertices.dtype, device=vertices.device)
     else:
-        n = sample_normals(v_np, t, vis)
+        n = sample_normals(v_np, t, vis, foreground=True)
+
         def as_xp(a):
             return np.asarray(a, dtype=like)
 
@@ -158,7 +160,7 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
             raise InputError(f"texture uv must be (T, 2) with triangle_uv {t.shape} ids into it")
         if not np.isfinite(uv).all():
             raise InputError("texture uv contain NaN or inf")
-        uv_samples = interpolate(vis, uv, tuv)
+        uv_samples = interpolate(vis, uv, tuv, foreground=True)
         if _is_torch(image):  # a differentiable texture (torch (h, w, 3) in [0, 1])
             albedo = sample_texture(image, as_xp(uv_samples))
         else:
@@ -166,7 +168,7 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
     elif colors is None:
         albedo = as_xp(_GREY)
     elif _is_torch(colors):
-        albedo = interpolate(vis, colors) if colors.ndim == 2 else colors
+        albedo = interpolate(vis, colors, foreground=True) if colors.ndim == 2 else colors
     else:
         c = np.asarray(colors)
         c = c / 255.0 if c.dtype == np.uint8 else c.astype(np.float64)
@@ -175,7 +177,7 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
         if c.shape == (3,):
             albedo = as_xp(c)
         elif c.ndim == 2 and c.shape[0] == len(v_np) and c.shape[1] in (3, 4):
-            albedo = as_xp(interpolate(vis, c[:, :3]))
+            albedo = as_xp(interpolate(vis, c[:, :3], foreground=True))
         else:
             raise InputError(f"colors must be (V, 3) per vertex or (3,), got {c.shape}")
 
@@ -189,10 +191,14 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
             if torch_in:
                 raise InputError("shadows are numpy-only")
             R = vis.camera.rotation
-            nw = sample_normals(v_np, t, vis, frame="world")
+            nw = sample_normals(v_np, t, vis, frame="world", foreground=True)
             visible = _shadow_mask(v_np, t, vis, [R.T @ lt.direction for lt in lights], nw)
         shaded = shade_directional(n, albedo, lights, ambient, visible)
-    bg = as_xp(_background(background, vis, like))
-    m = as_xp(vis.mask[..., None].astype(like))
-    image = vis.downsample(shaded * m + bg * (1 - m))
+    bg = _background(background, vis, like).reshape(-1, 3)
+    if torch_in:
+        samples = as_xp(bg).index_copy(0, torch.as_tensor(vis.pixels), shaded)
+    else:
+        samples = np.array(bg)
+        samples[vis.pixels] = shaded
+    image = vis.downsample(samples.reshape(tuple(vis.shape) + (3,)))
     return image.clamp(0, 1) if torch_in else np.clip(image, 0.0, 1.0)

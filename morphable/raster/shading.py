@@ -60,14 +60,20 @@ class DirectionalLight:
         self.color = c
 
 
+def _sh_terms(normals):
+    """The 9 basis functions of :func:`sh_basis` as a list of (...) arrays; the constant
+    first term is the scalar 1."""
+    x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
+    return [_A[0] * _Y0,
+            _A[1] * _C1 * y, _A[1] * _C1 * z, _A[1] * _C1 * x,
+            _A[2] * _C2 * x * y, _A[2] * _C2 * y * z, _A[2] * _C3 * (3 * z * z - 1),
+            _A[2] * _C2 * x * z, _A[2] * _C4 * (x * x - y * y)]
+
+
 def sh_basis(normals):
     """(..., 3) unit normals -> (..., 9) Lambertian SH irradiance basis (``B_0 = 1``)."""
-    x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
-    one = x * 0 + 1
-    terms = [one * _A[0] * _Y0,
-             _A[1] * _C1 * y, _A[1] * _C1 * z, _A[1] * _C1 * x,
-             _A[2] * _C2 * x * y, _A[2] * _C2 * y * z, _A[2] * _C3 * (3 * z * z - 1),
-             _A[2] * _C2 * x * z, _A[2] * _C4 * (x * x - y * y)]
+    terms = _sh_terms(normals)
+    terms[0] = terms[0] + normals[..., 0] * 0
     if _is_torch(normals):
         import torch
 
@@ -115,14 +121,16 @@ def shade_sh(normals, albedo, sh):
     array([[1., 1., 1.],
            [1., 1., 1.]])
     """
-    B = sh_basis(normals)
     coef = _sh_coefficients(sh, normals)
-    if coef.ndim == 2:
-        irradiance = B @ coef
-    else:  # one environment per batch item: (B, samples, 9) @ (B, 9, C)
-        n = coef.shape[0]
-        irradiance = (B.reshape(n, -1, 9) @ coef.reshape(n, 9, -1)).reshape(
-            tuple(B.shape[:-1]) + (coef.shape[-1],))
+    B = sh_basis(normals)
+    # einsum rather than B @ coef: BLAS threads make such skinny products many times
+    # slower on a busy machine
+    if _is_torch(normals):
+        import torch
+
+        irradiance = torch.einsum("...k,...kc->...c", B, coef)
+    else:
+        irradiance = np.einsum("...k,...kc->...c", B, coef)
     return albedo * irradiance
 
 
