@@ -7,7 +7,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from morphable.batch import RESULTS
@@ -17,27 +16,10 @@ ENV = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "OPENBLAS_
        "MKL_NUM_THREADS": "1"}
 
 
-def make_items(folder: Path, sfm, n: int, size=(320, 320), seed=0) -> Path:
-    """n tiny grey PNGs, each with the .pts of a random SFM face in a random pose."""
-    from PIL import Image
+def make_items(folder: Path, sfm, n: int, seed=0) -> Path:
+    from evaluation.bench_batch import make_synthetic_items
 
-    from morphable.camera import Camera
-    from morphable.fitting import simulate_landmarks
-    from morphable.io.landmarks import write_pts
-
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    Image.new("L", size, 128).save(folder / "blank.png")
-    for i in range(n):
-        cam = Camera.looking_at_face(image_size=size, yaw=rng.uniform(-40, 40),
-                                     pitch=rng.uniform(-15, 15), roll=rng.uniform(-10, 10))
-        lms = simulate_landmarks(sfm, cam, identity=rng.normal(size=sfm.n_identity))
-        lms += rng.normal(scale=0.5, size=lms.shape)
-        lms = np.where(np.isfinite(lms), lms, lms[48])  # .pts has no missing points; SFM ignores them
-        os.link(folder / "blank.png", folder / f"face{i:02d}.png")
-        write_pts(folder / f"face{i:02d}.pts", lms)
-    (folder / "blank.png").unlink()
-    return folder
+    return make_synthetic_items(folder, sfm, n, seed=seed)
 
 
 def cli(*args, **kw):
@@ -69,7 +51,7 @@ def reference(items20, tmp_path_factory):
 
 def test_uninterrupted_run(reference):
     recs = records(reference)
-    assert sorted(r["id"] for r in recs) == [f"face{i:02d}" for i in range(20)]
+    assert sorted(r["id"] for r in recs) == [f"face{i:03d}" for i in range(20)]
     for r in recs:
         assert r["status"] == "ok" and r["n_frames"] == 1
         assert 0 < r["landmark_rmse_px"] < 5.0  # 0.5 px noise plus model error
@@ -112,16 +94,16 @@ def test_kill_and_resume_matches_uninterrupted(items20, reference, tmp_path):
 def test_failed_items_and_multi_frame_subjects(tmp_path, sfm):
     d = make_items(tmp_path / "imgs", sfm, 3, seed=1)
     (d / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR")  # truncated
-    (d / "face02.pts").write_text("version: 1\nn_points: 3\n{\n1 2\n3 4\n5 6\n}\n")
+    (d / "face002.pts").write_text("version: 1\nn_points: 3\n{\n1 2\n3 4\n5 6\n}\n")
     (tmp_path / "m.csv").write_text("image,landmarks,subject\n"
-                                    "imgs/face00.png,imgs/face00.pts,anna\n"
-                                    "imgs/face01.png,imgs/face01.pts,anna\n"
-                                    "imgs/face02.png,,bob\nimgs/broken.png,,carl\n")
+                                    "imgs/face000.png,imgs/face000.pts,anna\n"
+                                    "imgs/face001.png,imgs/face001.pts,anna\n"
+                                    "imgs/face002.png,,bob\nimgs/broken.png,,carl\n")
     r = cli("fit-batch", tmp_path / "m.csv", "--out", tmp_path / "out")
     assert r.returncode == 1  # some items failed, the others were fitted
     recs = {x["id"]: x for x in records(tmp_path / "out")}
     assert recs["anna"]["status"] == "ok" and recs["anna"]["n_frames"] == 2
-    assert "face02.pts: expected 68 iBUG landmarks, got 3" in recs["bob"]["error"]
+    assert "face002.pts: expected 68 iBUG landmarks, got 3" in recs["bob"]["error"]
     assert "broken.png: cannot read image" in recs["carl"]["error"]
     assert sorted(p.name for p in (tmp_path / "out" / "items").iterdir()) == ["anna"]
     assert "1 fitted, 2 failed" in r.stdout
