@@ -132,6 +132,9 @@ def test_uv_table_is_cached_and_covers_half_a_triangle():
     c = (np.arange(32) + 0.5) / 32
     uu, vv = np.meshgrid(c, 1 - c)
     np.testing.assert_allclose(uv[a.mask], np.stack([uu, vv], -1)[a.mask], atol=1e-5)
+    # the foreground form gives the same values in the order of vis.pixels
+    fg = interpolate(a, np.array([[0.0, 0], [1, 0], [0, 1]]), foreground=True)
+    np.testing.assert_array_equal(fg, uv.reshape(-1, 2)[a.pixels])
 
 
 def test_tangent_space_of_model_is_z_for_its_mean_and_tilts_for_a_sample(sfm):

@@ -63,6 +63,8 @@ def test_gradcheck_interpolate_and_normal_map():
     assert torch.autograd.gradgradcheck(lambda a: interpolate(vis, a) ** 2, (attrs,), fast_mode=True)
     batch = torch.rand(2, len(v), 2, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda a: interpolate(vis, a), (batch,), fast_mode=True)
+    full = interpolate(vis, batch).detach().reshape(2, -1, 2)[:, vis.pixels]
+    assert torch.equal(interpolate(vis, batch, foreground=True).detach(), full)
     verts = torch.tensor(v, requires_grad=True)
     tiny = visibility(v, t, Camera.looking_at_face((5, 5), kind="perspective", face_width_px=8))
     assert tiny.mask.sum() >= 9
