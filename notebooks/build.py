@@ -217,7 +217,8 @@ through `morphable.raster.normal_map`) and a latent code `z` (appearance: skin, 
 background). This notebook samples images, edits the geometry with the appearance fixed, and
 inverts the renderer for a latent code.
 
-**Weights.** Trained GAR weights are looked up in `runs/tiny/generator.pt` (written by
+**Weights.** Trained GAR weights are looked up in `$MORPHABLE_GAR_WEIGHTS`, then
+`runs/tiny/generator.pt` and `runs/gar/generator.pt` (written by
 `python -m neural.train --config tiny --out runs/tiny`). Without them the generator below is
 **untrained**: the images are then structured noise shaped by the normal maps — the cells show
 the mechanics, not the quality of a trained model."""),
@@ -230,13 +231,17 @@ from neural.evaluate import load_generator
 from neural.gar import Generator
 
 torch.manual_seed(0)
-weights = REPO / "runs" / "tiny" / "generator.pt"
-if weights.is_file():
+# the first generator found: $MORPHABLE_GAR_WEIGHTS, then the runs of neural.train
+candidates = [os.environ.get("MORPHABLE_GAR_WEIGHTS"), REPO / "runs" / "tiny" / "generator.pt",
+              REPO / "runs" / "gar" / "generator.pt"]
+weights = next((Path(c) for c in candidates if c and Path(c).is_file()), None)
+if weights is not None:
     G = load_generator(weights)
-    print("trained generator:", weights)
+    step = torch.load(weights, map_location="cpu", weights_only=True).get("step")
+    print(f"trained generator: {weights} (step {step})")
 else:
     G = Generator(get_config("tiny")).eval().requires_grad_(False)
-    print(f"no trained weights at {weights}: an UNTRAINED tiny generator (random weights)")
+    print("no trained weights found: an UNTRAINED tiny generator (random weights)")
 R = G.config.resolution
 print(f"resolution {R} px, z_dim {G.config.z_dim}")'''),
         new_markdown_cell("## Normal maps from the 3DMM\n\nRandom identities of the SFM, framed "
