@@ -58,7 +58,10 @@ class _Problem:
         self.B = np.ascontiguousarray(bank.expression[:, :, :E])
         self.AT = np.ascontiguousarray(self.A.transpose(1, 0, 2))     # (3, R, K)
         self.BT = np.ascontiguousarray(self.B.transpose(1, 0, 2))
-        self.sliding = np.array(sorted(int(j) for lms, _ in bank.polylines for j in lms), dtype=np.int64)
+        sliding = [int(j) for lms, _ in bank.polylines for j in lms]
+        # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
+        # copy much faster than index lists into the (N, 3, 68, K) rows
+        self.sliding = slice(min(sliding), max(sliding) + 1) if sliding else None
         self.gram = _fixed_gram(bank, K) if robust is None and K else None
 
 
@@ -91,7 +94,7 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     correspondences; after the first time only the sliding jaw landmarks are redone."""
     c = st.corr
     if sliding_only and st.rows is not None:
-        if pb.sliding.size:
+        if pb.sliding is not None:
             c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
             for src, dst in zip((pb.AT, pb.BT), st.rows[1:]):
                 c.gather_coordinates(src, pb.sliding, dst)

@@ -61,8 +61,8 @@ def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = T
     Xn = Xc / sx[:, None, None]
     yn = yc / sy[:, None, None]
     # centred data: the translation of the affine camera is zero, solve y = M X for M (2x3)
-    G = np.einsum("nl,nli,nlj->nij", w, Xn, Xn)
-    rhs = np.einsum("nl,nli,nlj->nij", w, Xn, yn)
+    wX = (w[..., None] * Xn).transpose(0, 2, 1)
+    G, rhs = wX @ Xn, wX @ yn
     # coplanar model points (few landmarks) leave depth free: a tiny ridge keeps it defined
     G = G + 1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(3)
     M = np.linalg.solve(G, rhs).transpose(0, 2, 1) * (sy / sx)[:, None, None]     # (N, 2, 3)
@@ -83,7 +83,7 @@ def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = T
 
 def _check_spread(centred, w, rms, what):
     # the smallest principal spread must not vanish relative to the largest
-    cov = np.einsum("nl,nli,nlj->nij", w, centred, centred)
+    cov = (w[..., None] * centred).transpose(0, 2, 1) @ centred
     ev = np.linalg.eigvalsh(cov)
     bad = ~(ev[:, -2] > 1e-8 * ev[:, -1]) | ~(rms > 0) | ~np.isfinite(rms)
     if bad.any():
