@@ -1,8 +1,18 @@
 """Landmark fitting: identity, expressions and cameras from 2D iBUG-68 landmarks.
 
+Modules, each usable alone:
+
+- :mod:`.landmark_fit` — :func:`fit_landmarks`, the whole fit (one or many frames, shared or
+  per-frame identity, affine or pinhole camera) returning a :class:`FitResult`;
+- :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
+- :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;
+- :mod:`.correspondences` — landmark rows of a model, jaw sliding and silhouette marching;
+- :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
+- :mod:`.detect` — dlib face and 68-point detection.
+
 >>> from morphable.fitting import fit_landmarks, FitResult   # doctest: +SKIP
 
-numpy only at import time; scipy and dlib load inside the functions that need them.
+numpy only, at import time and in the fit; dlib loads inside the detection functions.
 """
 from .correspondences import Correspondences, LandmarkBank, landmark_bank, slide_contours
 from .landmark_fit import fit_landmarks
