@@ -285,3 +285,15 @@ def test_download_ict_archive(tmp_path, data_dir):
     (tmp_path / "junk.zip").write_bytes(b"junk")
     with pytest.raises(InputError, match="not a zip archive"):
         download("ict", tmp_path / "cache3", url=(tmp_path / "junk.zip").as_uri())
+
+
+def test_atomic_outputs_get_the_usual_mode(tmp_path):
+    import os
+
+    from morphable.io import atomic_path
+
+    with atomic_path(tmp_path / "a.txt") as tmp:
+        tmp.write_text("x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o666 & ~umask
