@@ -109,17 +109,21 @@ def test_failed_items_and_multi_frame_subjects(tmp_path, sfm):
     assert "1 fitted, 2 failed" in r.stdout
 
 
-def test_process_pool_and_dask_local_cluster_match_serial(tmp_path, sfm):
+def test_process_pool_and_dask_match_serial(tmp_path, sfm):
     pytest.importorskip("distributed")
+    from dask.distributed import LocalCluster
+
     d = make_items(tmp_path / "imgs", sfm, 4, seed=2)
     runs = {}
-    for name, extra in (("serial", []), ("pool", ["--workers", "2"]),
-                        ("dask", ["--workers", "2", "--scheduler", "local"])):
-        r = cli("fit-batch", d, "--out", tmp_path / name, *extra)
-        assert r.returncode == 0, r.stderr
-        runs[name] = sorted((comparable(x) for x in records(tmp_path / name)), key=lambda x: x["id"])
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        for name, extra in (("serial", []), ("pool", ["--workers", "2"]),
+                            ("dask-local", ["--workers", "2", "--scheduler", "local"]),
+                            ("dask-tcp", ["--scheduler", cluster.scheduler_address])):
+            r = cli("fit-batch", d, "--out", tmp_path / name, *extra)
+            assert r.returncode == 0, r.stderr
+            runs[name] = sorted((comparable(x) for x in records(tmp_path / name)), key=lambda x: x["id"])
     assert len(runs["serial"]) == 4
-    for name in ("pool", "dask"):
+    for name in ("pool", "dask-local", "dask-tcp"):
+        assert [a["id"] for a in runs[name]] == [b["id"] for b in runs["serial"]]
         for a, b in zip(runs[name], runs["serial"]):
-            assert a["id"] == b["id"]
             assert a["landmark_rmse_px"] == pytest.approx(b["landmark_rmse_px"], abs=1e-3)

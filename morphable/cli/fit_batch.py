@@ -53,6 +53,10 @@ def run(args):
     if not out.exists() and not out.parent.resolve().is_dir():
         raise InputError(f"{out}: parent folder {out.parent} does not exist")
     items = read_manifest(args.input)
+    for it in items:
+        # absolute paths: workers of a remote scheduler do not share this working directory
+        it.images = [str(Path(x).absolute()) for x in it.images]
+        it.landmarks = [None if x is None else str(Path(x).absolute()) for x in it.landmarks]
     load_model(args.model)  # an unknown model fails here, once, not in every item
     options = {"model": args.model, "camera": args.camera, "focal_px": args.focal,
                "iterations": args.iterations, "robust": args.robust,
