@@ -4,6 +4,7 @@ The table is parsed from the document, so the document and the behaviour cannot 
 """
 import json
 import os
+import pickle
 import re
 import shlex
 import struct
@@ -89,6 +90,15 @@ def make_fixtures(d: Path) -> None:
     (d / "bad.jsonl").write_text('{"image": "face.png"}\n[1, 2]\n')
     (d / "nocol.csv").write_text("path,subject\nface.png,x\n")
     (d / "truncated.ljson").write_text((DATA / "scans/james/james.ljson").read_text()[:2000])
+    (d / "corrupt.h5").write_bytes(np.random.default_rng(1).bytes(3000))
+    import h5py
+
+    with h5py.File(d / "other.h5", "w") as f:
+        f["x"] = [1, 2]
+    (d / "truncated.pkl").write_bytes(pickle.dumps({"v_template": [1.0] * 1000})[:100])
+    (d / "other.pkl").write_bytes(pickle.dumps({"a": 1}))
+    (d / "ictdir").mkdir()
+    (d / "ictdir" / "generic_neutral_mesh.obj").write_text("")
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +147,7 @@ def test_table_covers_every_entry_point():
     used = {shlex.split(cmd)[1] if cmd.startswith("morphable") else "evaluation.florence"
             for _, cmd, _ in ROWS}
     assert set(COMMANDS) - {"plot"} <= used and "evaluation.florence" in used
-    assert len(ROWS) >= 50 and len(set(ROWS)) == len(ROWS)
+    assert len(ROWS) >= 60 and len(set(ROWS)) == len(ROWS)
 
 
 @pytest.mark.parametrize("row", ROWS, ids=[f"{i:02d}-{r[1].split()[1]}" for i, r in enumerate(ROWS)])

@@ -33,6 +33,11 @@ def load_bfm_h5(path, name: str | None = None):
     path = Path(path)
     try:
         with h5py.File(path, "r") as f:
+            for key in ("shape/representer/points", "shape/representer/cells", "shape/model/mean",
+                        "shape/model/pcaBasis", "shape/model/pcaVariance"):
+                # h5py's KeyError text is its C library's, not the missing name
+                if key not in f:
+                    raise InputError(f"{path}: not a BFM 2017 file (no {key})")
             points = np.asarray(f["shape/representer/points"], dtype=np.float64)
             cells = np.asarray(f["shape/representer/cells"], dtype=np.int64)
             V = points.shape[1]
@@ -41,6 +46,8 @@ def load_bfm_h5(path, name: str | None = None):
             if "expression" in f:
                 emean, expression = _scaled_basis(f["expression"], V)
                 mean = mean + emean  # statismo stores the expression model around its own mean
+    except InputError:
+        raise
     except KeyError as e:
         raise InputError(f"{path}: not a BFM 2017 file (missing {e})") from None
     except (OSError, ValueError, TypeError) as e:
