@@ -311,3 +311,21 @@ def _size(path):
 
     with Image.open(path) as im:
         return im.size
+
+
+@pytest.mark.parametrize("model_name", ["sfm", "ict"])
+def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name):
+    import morphable.fitting.landmark_fit as lf
+
+    model = request.getfixturevalue(model_name)
+    rng = np.random.default_rng(5)
+    lms = np.stack([synth(model, yaw=y, identity=rng.standard_normal(10))[0] for y in (-35, 10, 50)])
+    missing = lms.copy()
+    missing[1, 40] = np.nan          # a missing fixed landmark: that batch takes the plain path
+    cases = [(x, s) for x in (lms, missing) for s in (True, False)]
+    fast = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
+    monkeypatch.setattr(lf, "_fixed_gram", lambda bank, K, jaw: None)
+    plain = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
+    for f, p in zip(fast, plain):
+        np.testing.assert_allclose(f.frame_identity, p.frame_identity, atol=1e-8)
+        np.testing.assert_allclose(f.expression, p.expression, atol=1e-8)

@@ -62,19 +62,23 @@ class _Problem:
         # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
         # copy much faster than index lists into the (N, 3, 68, K) rows
         self.sliding = slice(min(sliding), max(sliding) + 1) if sliding else None
-        self.gram = _fixed_gram(bank, K) if robust is None and K else None
+        self.gram = _fixed_gram(bank, K, self.sliding) if robust is None and K else None
 
 
-def _fixed_gram(bank, K):
-    """(fixed landmarks, the others, G (3, 3, K, K)): Gram blocks of the identity rows of the
-    landmarks with fixed vertices, cached per model and K (see ``linear.gram_hessian``)."""
+def _fixed_gram(bank, K, jaw):
+    """(fixed landmarks, jaw slice, G (3, 3, K, K)): Gram blocks of the identity rows of the
+    fixed landmarks outside the jaw slice, cached per model and K (see
+    ``linear.gram_hessian``); landmarks in neither never have a correspondence."""
     cache = bank.__dict__.setdefault("_gram", {})
-    if K not in cache:
+    jaw = jaw if jaw is not None else slice(0, 0)
+    key = (K, jaw.start, jaw.stop)
+    if key not in cache:
         fixed = np.flatnonzero(bank.fixed_row >= 0)
+        fixed = fixed[(fixed < jaw.start) | (fixed >= jaw.stop)]
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
         G = np.einsum("lik,ljm->ijkm", Af, Af)
-        cache[K] = (fixed, np.setdiff1d(np.arange(68), fixed), np.ascontiguousarray(G))
-    return cache[K]
+        cache[key] = (fixed, jaw, np.ascontiguousarray(G))
+    return cache[key]
 
 
 class _State:

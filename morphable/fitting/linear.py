@@ -47,7 +47,8 @@ def gram_hessian(P, W, Phi, gram):
     ``G_ij = sum_l A_l[i]^T A_l[j]`` computed once per model: about 4x fewer operations than
     the plain product. ``gram = (fixed (F,), moving (M,), G (3, 3, k, k))``; frames that do
     not qualify (per-point projections, missing or differently weighted fixed landmarks)
-    fall back to the plain product.
+    fall back to the plain product. ``moving`` (indices or a slice) covers every other
+    landmark that can have a weight.
     """
     N, _, L, k = Phi.shape
     W2 = np.concatenate([W, W], 1)
@@ -61,7 +62,7 @@ def gram_hessian(P, W, Phi, gram):
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
     H = (M.reshape(N, 9) @ G.reshape(9, k * k)).reshape(N, k, k) * wf[:, :1, None]
-    Pm = Phi[:, :, moving].reshape(N, 2 * len(moving), k)
+    Pm = Phi[:, :, moving].reshape(N, -1, k)
     Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
     return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm
 
