@@ -145,6 +145,10 @@ def main(argv=None) -> int:
         for c in args.conditions:
             if c not in CONDITIONS:
                 raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+        out = Path(args.out)
+        existing = next(p for p in (out, *out.absolute().parents) if p.exists())
+        if not existing.is_dir():  # fail now, not after minutes of fitting
+            raise InputError(f"{out}: cannot create the output folder ({existing} is a file)")
         from morphable import load_model
 
         model = load_model(args.model)
@@ -152,7 +156,6 @@ def main(argv=None) -> int:
         with logging_redirect_tqdm():
             result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
                          log=logging.getLogger("evaluation.report").info, progress=not args.quiet)
-        out = Path(args.out)
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as e:

@@ -144,9 +144,10 @@ def outcomes(fixtures, tmp_path_factory):
 def test_table_covers_every_entry_point():
     from morphable.cli import COMMANDS
 
-    used = {shlex.split(cmd)[1] if cmd.startswith("morphable") else "evaluation.florence"
+    used = {shlex.split(cmd)[1] if cmd.startswith("morphable") else shlex.split(cmd)[2]
             for _, cmd, _ in ROWS}
-    assert set(COMMANDS) - {"plot"} <= used and "evaluation.florence" in used
+    assert set(COMMANDS) - {"plot"} <= used
+    assert {"evaluation.florence", "evaluation.report"} <= used
     assert len(ROWS) >= 60 and len(set(ROWS)) == len(ROWS)
 
 
