@@ -36,15 +36,16 @@ __all__ = ["load_generator", "normal_consistency", "landmark_consistency",
            "identity_consistency", "frechet_distance", "evaluate", "main"]
 
 
-def load_generator(path) -> Generator:
-    """A Generator (eval mode) from ``generator.pt`` or ``checkpoint.pt`` of neural.train."""
+def load_generator(path, ema: bool = True) -> Generator:
+    """A Generator (eval mode) from ``generator.pt`` or ``checkpoint.pt`` of neural.train;
+    from a checkpoint, ``ema=False`` takes the raw generator instead of its moving average."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: generator weights not found")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
         G = Generator(GARConfig.from_dict(ckpt["config"]))
-        G.load_state_dict(ckpt["G_ema"] if "G_ema" in ckpt else ckpt["G"])
+        G.load_state_dict(ckpt["G_ema"] if ema and "G_ema" in ckpt else ckpt["G"])
     except (KeyError, RuntimeError, EOFError, OSError) as e:
         raise InputError(f"{path}: not a GAR checkpoint ({str(e).splitlines()[0]})") from None
     return G.eval().requires_grad_(False)
@@ -161,13 +162,15 @@ def main(argv=None) -> int:
     p.add_argument("--ablation", help="generator trained with lambda_n = 0 (reported as gar_lambda_n0)")
     p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/weights)")
     p.add_argument("--grid", help="Figure-3-like PNG (default: beside the report)")
+    p.add_argument("--raw", action="store_true",
+                   help="checkpoints: evaluate the raw generator, not its moving average")
     p.add_argument("--faces", type=int, default=64)
     p.add_argument("--seed", type=int, default=12345)
     args = p.parse_args(argv)
     try:
-        gens = {"gar": load_generator(args.generator)}
+        gens = {"gar": load_generator(args.generator, not args.raw)}
         if args.ablation:
-            gens["gar_lambda_n0"] = load_generator(args.ablation)
+            gens["gar_lambda_n0"] = load_generator(args.ablation, not args.raw)
         aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
                            resolution=gens["gar"].config.resolution) for n in NAMES}
         out = Path(args.report)

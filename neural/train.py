@@ -203,8 +203,10 @@ class Trainer:
         loss.backward()
         self.opt_d.step()
 
-        # G_ema: half-life of 10k images
-        beta = 0.5 ** (B / 10_000)
+        # G_ema: half-life of 10k images, ramped up over the first images (StyleGAN2-ADA's
+        # ema_rampup = 0.05) so that short runs do not sit at the initial weights
+        half_life = min(10_000, 0.05 * (self.step + 1) * B)
+        beta = 0.5 ** (B / half_life)
         with torch.no_grad():
             for pe, p in zip(self.G_ema.parameters(), self.G.parameters()):
                 pe.lerp_(p, 1 - beta)
