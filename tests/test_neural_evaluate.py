@@ -89,3 +89,24 @@ def test_report_end_to_end(tmp_path, data_dir):
     assert r["gar"] == r["gar_lambda_n0"]           # same weights, same seeds
     assert (tmp_path / "gar.png").is_file()
     assert main(["--report", str(report), "--generator", str(tmp_path / "none.pt")]) == 2
+
+
+def test_committed_aux_weights_quality(data_dir):
+    """The committed N, P, L work on renders they never saw (seeds outside training)."""
+    pytest.importorskip("open3d")
+    from neural.aux import default_weights_path, load_aux
+    from neural.data import SyntheticFaces
+
+    if not default_weights_path("N").is_file():
+        pytest.skip("no committed aux weights")
+    aux = {n: load_aux(n) for n in "NPL"}
+    data = SyntheticFaces(resolution=64)
+    b = data.sample(8, rng=[99, 2**40])
+    assert normal_consistency(b["image"], b["normals"], aux) < 22.0
+    face = b["mask"][:, 0] > 0.5
+    with torch.no_grad():
+        pred = aux["P"](b["image"])[:, 0] > 0.5
+        lm = aux["L"].landmarks(b["image"])
+    assert float((pred & face).sum() / (pred | face).sum()) > 0.9
+    ok = ~torch.isnan(b["landmarks"][..., 0])
+    assert float((lm - b["landmarks"]).norm(dim=-1)[ok].mean()) < 3.0
