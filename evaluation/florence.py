@@ -14,6 +14,14 @@ Command::
 
 prints a table (method x condition, mean ± std of the point-to-plane error in mm, seconds per
 frame) and writes the JSON report plus the per-vertex errors (``.npz`` beside the report).
+
+A validation set that is not a real scan (for choosing settings without touching the held-out
+scans): ``--synthetic-scan ict --n-scans 8`` samples subjects from another model
+(:func:`evaluation.scans.model_scan`, its own landmark vertices as the scan landmarks) and
+reports, per method and condition, the mean over the subjects::
+
+    python -m evaluation.florence --synthetic-scan ict --n-scans 8 \
+        --methods ours ours-independent eos mean-face --report reports/florence_ict.json
 """
 from __future__ import annotations
 
@@ -31,11 +39,11 @@ from tqdm import tqdm
 from morphable.errors import FitError, InputError, MorphableError
 from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 
-from .scans import UNITS, Scan, load_scan
+from .scans import UNITS, Scan, load_scan, model_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
-           "format_table", "save_heatmap", "main"]
+           "run_model_scans", "format_table", "save_heatmap", "main"]
 
 MIN_LANDMARKS = 10
 """Frames with fewer landmarks are dropped before reconstruction."""
@@ -324,6 +332,55 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     return report, errors
 
 
+AVERAGED = ("mean_mm", "median_mm", "s_per_frame", "point_to_surface_mm", "scan_to_recon_mm",
+            "symmetric_mm")
+
+
+def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, seed: int = 0,
+                    scan_seed: int = 100, log=None, progress: bool = False, **kwargs):
+    """:func:`run_protocol` on ``n_scans`` subjects sampled from ``scan_model``
+    (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...).
+
+    Returns
+    -------
+    report : the :func:`run_protocol` shape; each cell holds the means over the subjects of
+        ``mean_mm``, ``median_mm``, ``s_per_frame`` and the other metrics, ``std_mm`` the
+        standard deviation of ``mean_mm`` across subjects, ``per_scan_mm`` the list, and
+        ``n_failed``; ``scan`` describes the sampled set
+    """
+    if n_scans < 1:
+        raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
+    per = {m: {c: [] for c in conditions} for m in methods}
+    report = None
+    for i in tqdm(range(n_scans), disable=not progress, desc="subjects", unit="scan"):
+        scan = model_scan(scan_model, scan_seed + i)
+        rep, _ = run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)
+        report = report or rep
+        for m in methods:
+            for c in conditions:
+                per[m][c].append(rep["methods"][m][c])
+        if log:
+            log(f"subject {i + 1}/{n_scans}: " + ", ".join(
+                f"{m} {np.mean([per[m][c][-1].get('mean_mm', np.nan) for c in conditions]):.3f}"
+                for m in methods))
+    for m in methods:
+        for c in conditions:
+            ok = [cell for cell in per[m][c] if "mean_mm" in cell]
+            if not ok:
+                report["methods"][m][c] = {"error": per[m][c][0]["error"]}
+                continue
+            cell = {k: float(np.mean([x[k] for x in ok])) for k in AVERAGED}
+            cell["std_mm"] = float(np.std([x["mean_mm"] for x in ok]))
+            cell["per_scan_mm"] = [round(x["mean_mm"], 4) for x in ok]
+            cell["n_failed"] = len(per[m][c]) - len(ok)
+            report["methods"][m][c] = cell
+    report["scan"] = {"model": scan_model.name, "n_scans": n_scans,
+                      "seeds": [scan_seed + i for i in range(n_scans)],
+                      "landmarks": f"the {scan_model.name} landmark vertices",
+                      "std_mm": "standard deviation of the per-subject means"}
+    return report
+
+
 def format_table(report: dict) -> str:
     """The paper-shaped table: method x condition, mean ± std (mm), seconds per frame; then
     the same reconstructions under the other metrics."""
@@ -331,7 +388,8 @@ def format_table(report: dict) -> str:
     conds = list(next(iter(report["methods"].values()), {}))
     w = 16
     head = f"{'method':<18}" + "".join(f"{c:>{w}}" for c in conds) + f"{'s/frame':>10}"
-    lines = [f"point-to-plane error, mm (mean ± std over vertices); {report['settings']['frames']} "
+    over = ("subjects" if "n_scans" in report.get("scan", {}) else "vertices")
+    lines = [f"point-to-plane error, mm (mean ± std over {over}); {report['settings']['frames']} "
              f"frames per video, model {report['settings']['model']}", head, "-" * len(head)]
     for m in methods:
         row, secs = f"{m:<18}", []
@@ -358,9 +416,13 @@ def format_table(report: dict) -> str:
 
 def _parser():
     p = argparse.ArgumentParser(prog="python -m evaluation.florence", description=__doc__.split("\n")[0])
-    p.add_argument("--scan", required=True, help="scan mesh (OBJ, PLY, STL...)")
-    p.add_argument("--scan-landmarks", required=True,
+    p.add_argument("--scan", help="scan mesh (OBJ, PLY, STL...)")
+    p.add_argument("--scan-landmarks",
                    help="68 or 51 (inner) 3D landmarks: .ljson, .npy, .txt (N x 3) or .pts")
+    p.add_argument("--synthetic-scan", metavar="MODEL",
+                   help="instead of --scan: subjects sampled from this model (e.g. ict), its "
+                        "landmark vertices as scan landmarks")
+    p.add_argument("--n-scans", type=int, default=8, help="subjects for --synthetic-scan")
     p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
     p.add_argument("--methods", nargs="+", default=["ours", "eos", "mean-face"])
     p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
@@ -372,6 +434,10 @@ def _parser():
                    help="landmarks from dlib on rendered frames instead of projected scan landmarks")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
     p.add_argument("--iterations", type=int, help="iterations of ours (default: the fitter's)")
+    p.add_argument("--definition-std", type=float,
+                   help="ours: landmark definition error, mm (default: the fitter's)")
+    p.add_argument("--model-std", type=float,
+                   help="ours: per-frame model landmark error, mm (default: the fitter's)")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
@@ -387,9 +453,10 @@ def _parser():
 def _write_outputs(report: dict, errors: dict, report_path: Path, errors_path: Path):
     from morphable.io.atomic import atomic_path
 
-    with atomic_path(errors_path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **errors)
+    if errors:
+        with atomic_path(errors_path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **errors)
     with atomic_path(report_path) as tmp:
         tmp.write_text(json.dumps(report, indent=1))
 
@@ -411,23 +478,40 @@ def main(argv=None) -> int:
                              f"({args.video_frames})")
         from morphable import load_model
 
+        if (args.synthetic_scan is None) == (args.scan is None):
+            raise InputError("give either --scan with --scan-landmarks, or --synthetic-scan")
+        if args.scan is not None and args.scan_landmarks is None:
+            raise InputError(f"--scan {args.scan}: --scan-landmarks is required")
         model = load_model(args.model)
-        scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
-        efforts = {}
-        if args.iterations:
-            efforts = {"ours": {"n_iterations": args.iterations},
-                       "ours-independent": {"n_iterations": args.iterations}}
+        if args.synthetic_scan:
+            scan_model = load_model(args.synthetic_scan)
+            for bad in ("detect", "frames_dir", "heatmaps"):
+                if getattr(args, bad):
+                    raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
+        else:
+            scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
+        ours = {k: v for k, v in (("n_iterations", args.iterations),
+                                  ("definition_std_mm", args.definition_std),
+                                  ("model_std_mm", args.model_std)) if v is not None}
+        efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
         if args.plot:
             from morphable.plots import check_plot_path
 
             check_plot_path(args.plot)
+        common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
+                      icp_scale=args.icp_scale, landmark_scale=not args.rigid,
+                      log=logging.getLogger("evaluation.florence").info, progress=not args.quiet)
         with logging_redirect_tqdm():
-            report, errors = run_protocol(
-                scan, model, args.methods, args.conditions, args.frames, args.video_frames,
-                args.seed, detect=args.detect, frames_dir=args.frames_dir, efforts=efforts,
-                radius=args.radius, icp=not args.no_icp, icp_scale=args.icp_scale,
-                landmark_scale=not args.rigid, log=logging.getLogger("evaluation.florence").info,
-                progress=not args.quiet)
+            if args.synthetic_scan:
+                errors = {}
+                report = run_model_scans(scan_model, model, args.methods, args.conditions,
+                                         args.n_scans, args.seed, n_sampled=args.frames,
+                                         n_frames=args.video_frames, **common)
+            else:
+                report, errors = run_protocol(scan, model, args.methods, args.conditions,
+                                              args.frames, args.video_frames, args.seed,
+                                              detect=args.detect, frames_dir=args.frames_dir,
+                                              **common)
         cells = [cell for per in report["methods"].values() for cell in per.values()]
         if cells and all("error" in cell for cell in cells):
             raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")

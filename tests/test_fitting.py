@@ -69,7 +69,8 @@ def test_projection_jacobian_matches_finite_differences(perspective):
 def test_affine_fit_recovers_pose_and_shape(sfm, face, yaw):
     alpha, beta = face
     lms, cam, verts = synth(sfm, yaw=yaw, pitch=10, roll=-5, identity=alpha, expression=beta)
-    res = fit_landmarks(sfm, lms, (512, 512))
+    # the model's own landmark vertices: no definition error to allow for
+    res = fit_landmarks(sfm, lms, (512, 512), definition_std_mm=0.0)
     assert res.landmark_rmse_px[0] < 3.0        # a regularised fit of a ~200 px face
     np.testing.assert_allclose(res.euler_deg[0], [yaw, 10, -5], atol=4)
     fitted = res.vertices(0)
@@ -86,7 +87,8 @@ def test_perspective_fit_recovers_pose(sfm, face):
     alpha, beta = face
     lms, cam, verts = synth(sfm, yaw=25, pitch=-5, identity=alpha, expression=beta,
                             kind="perspective", distance=400)
-    res = fit_landmarks(sfm, lms, (512, 512), camera="perspective", focal_px=cam.focal)
+    res = fit_landmarks(sfm, lms, (512, 512), camera="perspective", focal_px=cam.focal,
+                        definition_std_mm=0.0)
     assert res.cameras[0].kind == "perspective"
     assert res.landmark_rmse_px[0] < 1.5
     np.testing.assert_allclose(res.euler_deg[0], [25, -5, 0], atol=4)
@@ -155,6 +157,46 @@ def test_independent_frames_average_identity(sfm, face):
     # a batch fit equals fitting every frame alone
     alone = fit_landmarks(sfm, lms[1], (512, 512))
     np.testing.assert_allclose(res.frame_identity[1], alone.identity, atol=1e-6)
+
+
+def definition_error_frames(model, alpha, rng, n=10, offset_mm=4.0):
+    """Landmarks of ``n`` views whose inner points carry one fixed 3D offset each (an
+    annotation that defines them differently from the model), plus 1 px noise."""
+    verts = model.vertices(alpha)
+    ids = model.landmark_ids
+    inner = np.arange(17, 68)[ids[17:] >= 0]
+    off = rng.normal(0.0, offset_mm, (68, 3))
+    frames = []
+    for yaw in np.linspace(-30, 30, n):
+        cam = Camera.looking_at_face(image_size=(512, 512), yaw=yaw, pitch=5 * np.sin(yaw))
+        lm = simulate_landmarks(model, cam, vertices=verts)
+        lm[inner] = cam.project(verts[ids[inner]] + off[inner])
+        frames.append(lm + rng.normal(0.0, 1.0, lm.shape))
+    return np.stack(frames), verts
+
+
+def test_shared_definition_error_is_not_fitted_into_the_identity(sfm):
+    rng = np.random.default_rng(0)
+    lms, truth = definition_error_frames(sfm, rng.standard_normal(sfm.n_identity), rng)
+
+    def error(frames, d):
+        res = fit_landmarks(sfm, frames, (512, 512), definition_std_mm=d, n_expression=0)
+        return aligned_error(res.neutral_vertices(), truth)
+
+    naive, one, many = error(lms, 0.0), error(lms[4], 4.0), error(lms, 4.0)
+    # 10 frames as 10 independent looks at the same offsets bend the identity; with the
+    # offsets modelled, more frames help instead of hurting
+    assert many < 0.75 * naive and many < one, (naive, one, many)
+
+
+def test_definition_error_of_one_frame_is_extra_variance(sfm, face):
+    # alone, a frame cannot tell the shared offset from per-frame error: the two are one variance
+    lm = synth(sfm, yaw=25, identity=face[0])[0] + np.random.default_rng(1).normal(0, 2, (68, 2))
+    a = fit_landmarks(sfm, lm, (512, 512), definition_std_mm=4.0, model_std_mm=1.5)
+    b = fit_landmarks(sfm, lm, (512, 512), definition_std_mm=0.0, model_std_mm=np.hypot(4.0, 1.5))
+    np.testing.assert_allclose(a.identity, b.identity, atol=1e-8)
+    with pytest.raises(InputError, match="definition_std_mm"):
+        fit_landmarks(sfm, lm, (512, 512), definition_std_mm=-1.0)
 
 
 def test_ict_model(ict):

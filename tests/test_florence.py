@@ -145,6 +145,40 @@ def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
         assert e.shape == (sfm.n_vertices,) and np.isfinite(e).sum() == ours["n_vertices"]
 
 
+def test_model_scan_from_another_model(ict, sfm):
+    from evaluation.scans import model_scan
+    from morphable.metrics import align_landmarks
+
+    scan = model_scan(ict, 7)
+    again = model_scan(ict, 7)
+    np.testing.assert_array_equal(scan.vertices, again.vertices)
+    assert not np.allclose(model_scan(ict, 8).vertices, scan.vertices)
+    # the skin surface only (no eyeballs, teeth), every vertex used, landmarks on the subject
+    assert len(scan.vertices) == len(ict.segments["face"]) and scan.triangles.max() == len(scan.vertices) - 1
+    assert 55 < scan.interocular_mm < 75 and np.isfinite(scan.landmarks).all()
+    d = np.linalg.norm(scan.vertices[:, None] - scan.landmarks[None, 17:], axis=-1).min(0)
+    assert np.median(d) < 0.5
+    # its landmark definition is not the SFM's: millimetres apart after a similarity fit
+    ref = sfm.landmark_positions()
+    err = np.linalg.norm(align_landmarks(scan.landmarks, ref).apply(scan.landmarks) - ref, axis=1)
+    assert 2.0 < np.nanmean(err[17:]) < 8.0
+
+
+def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
+    pytest.importorskip("morphable.fitting")
+    pytest.importorskip("eos")
+    from evaluation.florence import run_model_scans
+
+    conds = ["indoor", "outdoor"]
+    report = run_model_scans(ict, sfm, ["ours", "eos", "mean-face"], conds, n_scans=2)
+    mean = {m: np.mean([report["methods"][m][c]["mean_mm"] for c in conds])
+            for m in ("ours", "eos", "mean-face")}
+    assert mean["ours"] < 0.95 * min(mean["eos"], mean["mean-face"]), mean
+    cell = report["methods"]["ours"]["indoor"]
+    assert len(cell["per_scan_mm"]) == 2 and cell["n_failed"] == 0
+    assert cell["mean_mm"] == pytest.approx(np.mean(cell["per_scan_mm"]), abs=1e-3)
+
+
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "evaluation.florence", *map(str, args)],
                           cwd=REPO, capture_output=True, text=True, timeout=300)
@@ -191,6 +225,22 @@ def test_command_bad_input_one_line_no_output(james_paths, tmp_path):
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--report",
                 tmp_path / "nowhere" / "r.json")
     assert r.returncode == 2 and "nowhere" in r.stderr
+
+
+def test_command_on_synthetic_subjects(tmp_path):
+    report = tmp_path / "r.json"
+    r = run_cli("--synthetic-scan", "ict", "--n-scans", "2", "--methods", "mean-face",
+                "--conditions", "outdoor", "--frames", "2", "--video-frames", "4",
+                "--report", report, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "std over subjects" in r.stdout
+    rep = json.loads(report.read_text())
+    assert rep["scan"]["model"] == "ict" and rep["scan"]["n_scans"] == 2
+    cell = rep["methods"]["mean-face"]["outdoor"]
+    assert len(cell["per_scan_mm"]) == 2 and 0.5 < cell["mean_mm"] < 5.0
+    assert cell["per_scan_mm"][0] != cell["per_scan_mm"][1]
+    r = run_cli("--synthetic-scan", "ict", "--scan", "x.obj", "--report", tmp_path / "s.json")
+    assert r.returncode == 2 and "either --scan" in r.stderr and not (tmp_path / "s.json").exists()
 
 
 def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):

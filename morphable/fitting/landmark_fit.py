@@ -17,11 +17,25 @@ Steps (each usable alone through the functions of this package):
 
 Cost (per fit)::
 
-    sum_frames sum_landmarks rho(|uv - y|^2 / s^2) + prior_weight |alpha|^2
+    sum_frames sum_landmarks rho(|uv - y|^2 / s^2) + prior_weight |alpha|^2 + |delta|^2
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
 with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
 ``prior_weight = 1``. Only the landmark rows of the model are evaluated, never the full mesh.
+
+Noise model. A landmark's 2D residual has three parts: the detector's noise
+(``landmark_std_px``, new in every frame), the model's per-frame error (``model_std_mm``), and
+the *definition* error (``definition_std_mm``): the annotation's lip corner or eyebrow is not
+the model's landmark vertex, by the same 3D offset in every frame of a subject. With one
+identity for several frames, treating that offset as independent per-frame noise counts N
+frames as N looks at it, and the identity bends to fit it. So ``uv`` is the projection of
+``m + A alpha + B beta + definition_std_mm * delta`` with one 3D offset ``delta_l ~ N(0, I)``
+per fixed landmark, shared by the frames and estimated with the identity (in the same Schur
+block): marginalising it gives each landmark's residuals across frames the covariance
+``s^2 I + (k definition_std_mm)^2 1 1^T`` (per coordinate, affine, same pose). A single
+frame, or an independent fit per frame, cannot tell the offset from per-frame error; there
+it only adds its variance: ``s^2 += (k definition_std_mm)^2``, exactly what marginalising it
+gives. Sliding jaw points get no offset (they are defined by the outline they slide on).
 """
 from __future__ import annotations
 
@@ -46,7 +60,8 @@ class _Problem:
     """Fixed data of a fit: landmarks, weights, sizes and settings."""
 
     def __init__(self, bank, y, mask, principal, focal, perspective, K, E, shared, nonneg,
-                 prior_weight, expression_weight, landmark_std_px, model_std_mm, robust, huber_k):
+                 prior_weight, expression_weight, landmark_std_px, model_std_mm, robust, huber_k,
+                 definition_std_mm=0.0):
         self.bank, self.y, self.mask, self.principal = bank, y, mask, principal
         self.focal, self.perspective, self.K, self.E = focal, perspective, K, E
         self.shared, self.nonneg = shared, nonneg
@@ -54,15 +69,40 @@ class _Problem:
         self.landmark_std_px, self.model_std_mm = landmark_std_px, model_std_mm
         self.robust, self.huber_k = robust, huber_k
         self.N = y.shape[0]
+        # a landmark's definition error is shared by every frame of a subject: with one
+        # identity for several frames it gets its own coefficients (a 3D offset per landmark,
+        # N(0, definition_std_mm^2) per coordinate), appended to the identity's; alone, a frame
+        # cannot tell it from noise and it only widens the landmark's variance
+        self.offsets = bool(shared and self.N > 1 and definition_std_mm > 0)
+        self.n_identity = K
+        sliding = [int(j) for lms, _ in bank.polylines for j in lms]
+        # sliding jaw points are defined by the outline they slide on: no offset
+        self.offset_landmarks = np.setdiff1d(np.arange(y.shape[1]), sliding)
+        self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
+        self.frame_def_std = 0.0 if self.offsets else definition_std_mm
+        self.definition_std_mm = definition_std_mm
+        self.prior = np.r_[np.full(K, prior_weight), np.ones(self.D)]
         self.A = np.ascontiguousarray(bank.identity[:, :, :K])
         self.B = np.ascontiguousarray(bank.expression[:, :, :E])
         self.AT = np.ascontiguousarray(self.A.transpose(1, 0, 2))     # (3, R, K)
         self.BT = np.ascontiguousarray(self.B.transpose(1, 0, 2))
-        sliding = [int(j) for lms, _ in bank.polylines for j in lms]
         # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
         # copy much faster than index lists into the (N, 3, 68, K) rows
         self.sliding = slice(min(sliding), max(sliding) + 1) if sliding else None
-        self.gram = _fixed_gram(bank, K, self.sliding) if robust is None and K else None
+        self.gram = (_fixed_gram(bank, K, self.sliding) if robust is None and K and not self.offsets
+                     else None)
+        self.K = K + self.D          # the shared coefficients: identity, then offsets
+
+
+def _offset_rows(pb: _Problem):
+    """(N, 3, 68, D) coordinate-major rows of the landmark offsets: the i-th landmark of
+    ``pb.offset_landmarks`` moves along coordinate a by ``definition_std_mm`` per unit of
+    coefficient ``3 i + a``."""
+    lms = pb.offset_landmarks
+    O = np.zeros((3, pb.y.shape[1], pb.D))
+    for a in range(3):
+        O[a, lms, 3 * np.arange(len(lms)) + a] = pb.definition_std_mm
+    return np.broadcast_to(O, (pb.N,) + O.shape)
 
 
 def _fixed_gram(bank, K, jaw):
@@ -100,11 +140,15 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     if sliding_only and st.rows is not None:
         if pb.sliding is not None:
             c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
-            for src, dst in zip((pb.AT, pb.BT), st.rows[1:]):
+            # the offset columns (after the identity's) never change
+            for src, dst in zip((pb.AT, pb.BT), (st.rows[1][..., :pb.n_identity], st.rows[2])):
                 c.gather_coordinates(src, pb.sliding, dst)
         return
     # identity and expression rows coordinate-major, (N, 3, 68, k): projections are one GEMM
-    st.rows = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT), c.gather_coordinates(pb.BT))
+    A = c.gather_coordinates(pb.AT)
+    if pb.D:
+        A = np.concatenate([A, _offset_rows(pb)], -1)
+    st.rows = (c.gather_static(pb.bank.mean), A, c.gather_coordinates(pb.BT))
 
 
 def _combine(rows, coeffs):
@@ -135,7 +179,7 @@ def _weights(pb: _Problem, st: _State, depth=None):
         used = pb.mask & st.corr.defined
         d = np.where(used, depth, 0.0).sum(1) / np.maximum(used.sum(1), 1)
         scale = st.k / np.maximum(d, 1e-6)
-    s2 = pb.landmark_std_px ** 2 + (scale * pb.model_std_mm) ** 2
+    s2 = pb.landmark_std_px ** 2 + scale ** 2 * (pb.model_std_mm ** 2 + pb.frame_def_std ** 2)
     return np.where(pb.mask & st.corr.defined, 1.0 / s2[:, None], 0.0)
 
 
@@ -145,7 +189,7 @@ def _slide(pb: _Problem, st: _State):
         return
     chains = []
     for _, rows in bank.polylines:
-        X = bank.mean[rows] + np.einsum("rik,gk->gri", pb.A[rows], st.alpha)
+        X = bank.mean[rows] + np.einsum("rik,gk->gri", pb.A[rows], st.alpha[:, :pb.n_identity])
         if pb.E:
             X = X + np.einsum("rie,ne->nri", pb.B[rows], st.beta)
         chains.append(_project_state(pb, st, np.broadcast_to(X, (pb.N,) + X.shape[1:]), False)[0])
@@ -195,7 +239,7 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
         base = pb.y - q[:, None] - m @ P.transpose(0, 2, 1)
         if K:
             expr = _combine(Bg, beta) @ P.transpose(0, 2, 1) if E else 0.0
-            alpha = solve_identity(P, base - expr, W, Ag, pb.prior_weight, pb.shared, pb.gram)
+            alpha = solve_identity(P, base - expr, W, Ag, pb.prior, pb.shared, pb.gram)
         if E:
             ident = _combine(Ag, np.broadcast_to(alpha, (N, K))) @ P.transpose(0, 2, 1)
             beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
@@ -225,7 +269,7 @@ def _data_cost(pb, st, W, r=None, depth=None):
 def _group_cost(pb, st, frame_cost):
     g = frame_cost.sum(0, keepdims=True) if pb.shared else frame_cost
     if pb.K:
-        g = g + pb.prior_weight * (st.alpha ** 2).sum(1)
+        g = g + (pb.prior * st.alpha ** 2).sum(1)
     return g
 
 
@@ -288,8 +332,8 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
         ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
         if pb.shared:
             Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
-        Haa[:, np.arange(K), np.arange(K)] += pb.prior_weight
-        ga = ga + pb.prior_weight * st.alpha
+        Haa[:, np.arange(K), np.arange(K)] += pb.prior
+        ga = ga + pb.prior * st.alpha
         accepted = np.zeros(G, bool)
         for attempt in range(4):          # retry rejected groups with more damping
             # independent frames: re-solve only the ones still rejected
@@ -352,7 +396,7 @@ def _subset_cost(pb, st, W, sel):
     if pb.shared:
         c = c.sum(0, keepdims=True)
     if pb.K:
-        c = c + pb.prior_weight * (alpha ** 2).sum(1)
+        c = c + (pb.prior * alpha ** 2).sum(1)
     return c
 
 
@@ -414,7 +458,8 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                   n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
                   huber_k: float = 1.345, shared_identity: bool = True,
-                  landmark_std_px: float = 1.0, model_std_mm: float = 1.5, focal_px=None,
+                  landmark_std_px: float = 1.0, model_std_mm: float = 1.5,
+                  definition_std_mm: float = 2.0, focal_px=None,
                   contour: str = "slide", dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D iBUG-68 landmarks of one or more images.
 
@@ -444,7 +489,10 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         True: one identity for all frames. False: every frame is fitted on its own (batch mode,
         vectorised); ``identity`` is then the average of the per-frame identities.
     landmark_std_px, model_std_mm : float
-        Noise of the 2D points (px) and of the model's landmark definition (mm).
+        Noise of the 2D points (px) and the model's per-frame landmark error (mm).
+    definition_std_mm : float
+        Standard deviation (mm, per coordinate) of each fixed landmark's definition error, one
+        3D offset shared by all frames of a subject (see the module docstring); 0 = none.
     contour : {"slide", "fixed"}
         "slide" re-picks the jaw correspondences along the jaw polylines at every iteration.
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
@@ -482,7 +530,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         raise InputError(f"robust: expected None or 'huber', got {robust!r}")
     for name, v in (("prior_weight", prior_weight), ("expression_weight", expression_weight),
                     ("landmark_std_px", landmark_std_px), ("model_std_mm", model_std_mm),
-                    ("huber_k", huber_k)):
+                    ("definition_std_mm", definition_std_mm), ("huber_k", huber_k)):
         if not (np.isfinite(v) and v >= 0):
             raise InputError(f"{name}: must be a finite number >= 0, got {v}")
     if landmark_std_px == 0 and model_std_mm == 0:
@@ -514,7 +562,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
     pb = _Problem(bank, y, usable, principal, focal, perspective, K, E, shared_identity,
                   model.expression_kind == "blendshapes", float(prior_weight),
                   float(expression_weight), float(landmark_std_px), float(model_std_mm),
-                  robust, float(huber_k))
+                  robust, float(huber_k), float(definition_std_mm))
     with np.errstate(all="ignore"):
         st = _linear_stage(pb, n_linear)
         st, iters = _lm_stage(pb, st, n_iterations)
@@ -541,7 +589,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                            scale=float(st.k[i]) if not perspective else 1.0,
                            focal=float(st.k[i]) if perspective else 1.0,
                            image_size=(W_, H_), principal=principal[i]))
-    frame_alpha = np.broadcast_to(st.alpha, (N, K)).copy()
+    frame_alpha = np.broadcast_to(st.alpha[:, :K], (N, K)).copy()
     fitted = np.where(used[..., None], uv, np.nan)
     res = FitResult(model=model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
                     expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,
