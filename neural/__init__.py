@@ -8,7 +8,7 @@ for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
 - :mod:`neural.gar` — mapping network, modulated convolutions, Normal Injection, generator,
   residual discriminator;
 - :mod:`neural.losses` — L_n, L_ldmk, L_id, L_adv (non-saturating) with R1, weighted total;
-- :mod:`neural.aux` — the frozen auxiliary networks N (normals), P (face mask),
+- :mod:`neural.auxnets` — the frozen auxiliary networks N (normals), P (face mask),
   L (landmarks), R (identity) and their loader;
 - :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
 - :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``.

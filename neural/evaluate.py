@@ -28,7 +28,7 @@ import torch
 
 from morphable.errors import InputError, MorphableError
 
-from .aux import NAMES, load_aux
+from .auxnets import NAMES, load_aux
 from .config import GARConfig
 from .gar import Generator
 

@@ -102,7 +102,7 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     Parameters
     ----------
     G, D : :class:`neural.gar.Generator`, :class:`neural.gar.Discriminator`
-    aux : dict with frozen networks "N", "P", "L", "R" (see :mod:`neural.aux`)
+    aux : dict with frozen networks "N", "P", "L", "R" (see :mod:`neural.auxnets`)
     normals_a, normals_b : (B, 3, H, W) normal maps of the same identities under two
         different expressions/poses
     z1, z2 : (B, z_dim) two latents

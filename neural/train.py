@@ -30,7 +30,7 @@ import torch
 
 from morphable.errors import InputError, MorphableError
 
-from .aux import NAMES, default_weights_path, load_aux
+from .auxnets import NAMES, default_weights_path, load_aux
 from .config import GARConfig, get_config
 from .gar import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty

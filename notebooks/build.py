@@ -332,7 +332,7 @@ assert losses[-1] < losses[0]'''),
 ## Next
 
 ```
-python -m neural.aux.train --out neural/weights --steps 2000   # auxiliary networks N, P, L, R
+python -m neural.auxnets.train --out neural/weights --steps 2000   # auxiliary networks N, P, L, R
 python -m neural.train --config tiny --out runs/tiny            # then rerun this notebook
 python -m neural.evaluate --report reports/gar.json --generator runs/tiny/generator.pt
 ```"""),

@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural.aux.nets import soft_argmax  # noqa: E402
+from neural.auxnets.nets import soft_argmax  # noqa: E402
 from neural.evaluate import (frechet_distance, identity_consistency,  # noqa: E402
                              landmark_consistency, normal_consistency)
 
@@ -65,8 +65,8 @@ def test_landmark_identity_frechet_toy():
 
 def test_report_end_to_end(tmp_path, data_dir):
     pytest.importorskip("open3d")
-    from neural.aux import save_aux
-    from neural.aux.nets import NETS
+    from neural.auxnets import save_aux
+    from neural.auxnets.nets import NETS
     from neural.config import get_config
     from neural.evaluate import main
     from neural.gar import Generator
@@ -94,7 +94,7 @@ def test_report_end_to_end(tmp_path, data_dir):
 def test_committed_aux_weights_quality(data_dir):
     """The committed N, P, L work on renders they never saw (seeds outside training)."""
     pytest.importorskip("open3d")
-    from neural.aux import default_weights_path, load_aux
+    from neural.auxnets import default_weights_path, load_aux
     from neural.data import SyntheticFaces
 
     if not default_weights_path("N").is_file():

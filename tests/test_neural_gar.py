@@ -7,8 +7,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from morphable.errors import InputError  # noqa: E402
-from neural.aux import load_aux, save_aux  # noqa: E402
-from neural.aux.nets import soft_argmax  # noqa: E402
+from neural.auxnets import load_aux, save_aux  # noqa: E402
+from neural.auxnets.nets import soft_argmax  # noqa: E402
 from neural.config import get_config  # noqa: E402
 from neural.gar import (Discriminator, Generator, MinibatchStd, ModulatedConv2d,  # noqa: E402
                         NormalInjection, RenderBlock)

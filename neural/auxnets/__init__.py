@@ -10,8 +10,8 @@ name      input (B, 3, H, W) image in [-1, 1] ->           used by
 ``"R"``   identity embedding (B, D)                        L_id, fid_aux
 ========  ==============================================  ==================================
 
-No pretrained weights can be downloaded here, so small versions (:mod:`neural.aux.nets`) are
-trained on synthetic renders with exact labels (:mod:`neural.aux.train`). A stronger model
+No pretrained weights can be downloaded here, so small versions (:mod:`neural.auxnets.nets`) are
+trained on synthetic renders with exact labels (:mod:`neural.auxnets.train`). A stronger model
 with the same interface replaces one through ``load_aux(name, weights=...)``: a checkpoint
 of our architecture, a TorchScript file, or an ``nn.Module``.
 """
@@ -112,7 +112,7 @@ def _check_interface(name: str, net: nn.Module, where: str, resolution: int):
           else y.dim() == 2 and y.shape[0] == 1)
     if not ok:
         raise InputError(f"{where}: aux network {name!r} returns shape {tuple(y.shape)} for a "
-                         f"(1, 3, {resolution}, {resolution}) image; see neural.aux for the interface")
+                         f"(1, 3, {resolution}, {resolution}) image; see neural.auxnets for the interface")
 
 
 def load_aux(name: str, weights=None, pretrained: bool = True, width: int = 16,
@@ -155,7 +155,7 @@ def load_aux(name: str, weights=None, pretrained: bool = True, width: int = 16,
         path = default_weights_path(name)
         if not path.is_file():
             raise InputError(f"{path}: no trained weights for aux network {name!r}; train them "
-                             f"with `python -m neural.aux.train` or pass weights=")
+                             f"with `python -m neural.auxnets.train` or pass weights=")
         net, where = _from_file(name, path), str(path)
     if name == "L" and not hasattr(net, "landmarks"):
         net = _WithLandmarks(net)

@@ -1,5 +1,5 @@
 """Train the auxiliary networks N, P, L, R on synthetic renders with exact labels:
-``python -m neural.aux.train --out neural/weights --steps 2000``.
+``python -m neural.auxnets.train --out neural/weights --steps 2000``.
 
 Losses: N ``1 - cos`` on face pixels (coverage > 0.5); P binary cross-entropy against the
 pixel coverage; L mean pixel distance of the soft-argmax landmarks to the projected model
@@ -28,7 +28,7 @@ from . import NAMES, build_aux, save_aux
 
 __all__ = ["AuxTrainer", "main"]
 
-log = logging.getLogger("neural.aux.train")
+log = logging.getLogger("neural.auxnets.train")
 
 
 class AuxTrainer:
@@ -131,7 +131,7 @@ class AuxTrainer:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neural.aux.train", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m neural.auxnets.train", description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, help="folder for aux_N.pt, aux_P.pt, aux_L.pt, aux_R.pt")
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--batch-size", type=int, default=16)
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
         print(json.dumps(metrics, indent=1))
         return 0
     except MorphableError as e:
-        print(f"neural.aux.train: error: {e}", file=sys.stderr)
+        print(f"neural.auxnets.train: error: {e}", file=sys.stderr)
         return 2
 
 
