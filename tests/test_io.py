@@ -23,7 +23,10 @@ def test_eos_reader_matches_eos_py(data_dir, sfm):
     ours = sfm.identity_basis.reshape(63, -1).T
     np.testing.assert_allclose(ours, shape.get_rescaled_pca_basis(), rtol=1e-5, atol=1e-4)
     np.testing.assert_array_equal(sfm.triangles, np.array(shape.get_triangle_list()))
-    np.testing.assert_allclose(sfm.uv, np.array(m.get_texture_coordinates()), atol=1e-12)
+    eos_uv = np.array(m.get_texture_coordinates())  # v down in eos, v up here
+    np.testing.assert_allclose(sfm.uv, np.column_stack([eos_uv[:, 0], 1 - eos_uv[:, 1]]), atol=1e-12)
+    top, chin = np.argmax(sfm.mean[:, 1]), np.argmin(sfm.mean[:, 1])
+    assert sfm.uv[top, 1] > 0.9 and sfm.uv[chin, 1] < 0.1
     coeffs = np.linspace(-1, 1, 63)
     sample = np.array(shape.draw_sample(coeffs.astype(np.float32).tolist()))
     np.testing.assert_allclose(sfm.vertices(coeffs).ravel(), sample, atol=1e-3)

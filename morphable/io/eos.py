@@ -229,7 +229,8 @@ def load_eos(path, name: str | None = None):
 
     ``path`` is the model ``.bin`` or a folder holding exactly one; the folder's
     ``expression_blendshapes_*.bin``, ``ibug_to_*.txt``, ``*_model_contours.json`` and
-    ``*_reference_symmetry.txt`` are used when present.
+    ``*_reference_symmetry.txt`` are used when present. Texture coordinates are flipped from
+    eos' v-down to the toolkit's v-up convention (as in OBJ files).
     """
     from ..model import MorphableModel
 
@@ -270,6 +271,8 @@ def load_eos(path, name: str | None = None):
         expression_names=m.get("expression_names", []),
         expression_kind=m.get("expression_kind", "none"),
         landmark_ids=landmark_ids, contour_right=right, contour_left=left,
-        uv=m["uv"], triangle_uv=m["triangle_uv"],
+        # eos texture coordinates have v pointing down (image rows); the toolkit's point up
+        uv=None if m["uv"] is None else np.column_stack([m["uv"][:, 0], 1.0 - m["uv"][:, 1]]),
+        triangle_uv=m["triangle_uv"],
         symmetry=read_symmetry(sym[0], V) if sym else None,
         name=name or path.stem, source=str(path))
