@@ -1,0 +1,92 @@
+"""Renderer plugins: discovery through entry points, the classical SH renderer, the gar one."""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from morphable.errors import InputError  # noqa: E402
+from morphable.raster import DirectionalLight, sh_from_lights  # noqa: E402
+from morphable.renderers import Renderer, available_renderers, get_renderer  # noqa: E402
+
+
+def sphere_normals(size=48):
+    """(1, 3, size, size) camera-frame normals of a sphere filling the image (zero outside)."""
+    c = (size - 1) / 2
+    v, u = np.mgrid[0:size, 0:size]
+    x, y = (u - c) / (0.45 * size), -(v - c) / (0.45 * size)   # image y down, camera y up
+    r2 = x * x + y * y
+    n = np.stack([x, y, np.sqrt(np.clip(1 - r2, 0, None))], 0) * (r2 < 1)
+    return torch.tensor(n[None], dtype=torch.float32), r2 < 1
+
+
+def test_discovery():
+    names = available_renderers()
+    assert "classical" in names and "gar" in names
+    with pytest.raises(InputError, match="not installed"):
+        get_renderer("no-such-renderer")
+
+
+def test_classical_brightness_follows_n_dot_l():
+    light = np.array([0.5, 0.3, 1.0]) / np.linalg.norm([0.5, 0.3, 1.0])
+    r = get_renderer("classical")
+    assert isinstance(r, Renderer) and r.resolution is None
+    n, face = sphere_normals()
+    app = r.default_appearance(1)
+    app["sh"] = torch.tensor(sh_from_lights([DirectionalLight(light, 1.0)], ambient=0.0),
+                             dtype=torch.float32)[None]
+    app["albedo"] = torch.tensor([[0.8, 0.6, 0.4]])
+    app["background"] = torch.tensor([[0.1, 0.2, 0.3]])
+    img = r.render(n, app)[0].numpy()                        # (3, H, W)
+    ndotl = np.einsum("khw,k->hw", n[0].numpy(), light)
+    lit = face & (ndotl > 0.2)
+    grey = img[0] / 0.8
+    # band-2 SH approximates the clamped cosine: nearly linear in n.l on the lit side
+    assert np.corrcoef(grey[lit], ndotl[lit])[0, 1] > 0.99
+    np.testing.assert_allclose(grey[lit], ndotl[lit], atol=0.12)
+    # colour = albedo ratio, background untouched
+    np.testing.assert_allclose(img[1][lit] / img[0][lit], 0.75, rtol=1e-4)
+    np.testing.assert_allclose(img[:, 0, 0], [0.1, 0.2, 0.3], atol=1e-6)
+    # the brightest pixel faces the light
+    k = np.unravel_index(np.argmax(np.where(face, grey, -1)), grey.shape)
+    assert np.degrees(np.arccos(np.clip(n[0, :, k[0], k[1]].numpy() @ light, -1, 1))) < 10
+
+
+def test_classical_is_differentiable():
+    r = get_renderer("classical")
+    n, _ = sphere_normals(16)
+    app = {k: v.requires_grad_(True) for k, v in r.default_appearance(2).items()}
+    n = n.expand(2, -1, -1, -1).clone().requires_grad_(True)
+    r.render(n, app).mean().backward()
+    assert all(float(t.grad.abs().sum()) > 0 for t in (n, app["sh"], app["albedo"]))
+
+
+def test_gar_needs_weights(monkeypatch, tmp_path):
+    import neural.renderer as nr
+
+    monkeypatch.setenv(nr.WEIGHTS_ENV, str(tmp_path / "missing.pt"))
+    with pytest.raises(InputError, match="missing.pt"):
+        get_renderer("gar")
+    monkeypatch.delenv(nr.WEIGHTS_ENV)
+    monkeypatch.setattr(nr, "default_generator_path", lambda: None)
+    with pytest.raises(InputError, match="no generator weights"):
+        get_renderer("gar")
+    r = get_renderer("gar", allow_untrained=True)
+    assert r.resolution == 64
+    n, _ = sphere_normals(64)
+    app = r.default_appearance(1)
+    app["z"].requires_grad_(True)
+    img = r.render(n, app)
+    assert img.shape == (1, 3, 64, 64) and torch.isfinite(img).all()
+    assert 0 <= float(img.detach().min()) and float(img.detach().max()) <= 1
+    img.mean().backward()
+    assert float(app["z"].grad.abs().sum()) > 0
+
+
+def test_import_does_not_load_torch():
+    import subprocess
+    import sys
+
+    code = ("import sys, morphable, morphable.renderers; "
+            "print('torch' in sys.modules, morphable.renderers.available_renderers())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.startswith("False")
