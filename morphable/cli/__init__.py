@@ -12,7 +12,7 @@ import sys
 
 from ..errors import MorphableError
 
-COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "plot"]
+COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "plot", "edit"]
 """Module names under ``morphable.cli``; the order is the order of ``morphable --help``."""
 
 

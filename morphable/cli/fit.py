@@ -33,6 +33,12 @@ def add_parser(sub):
                    help="how --overlay draws the mesh (default shaded)")
     p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
                    help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
+    p.add_argument("--refine", choices=("classical", "gar"),
+                   help="then refine by inverting a renderer (needs the neural extra; "
+                        "gar: generator weights, see neural/README.md)")
+    p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
+    p.add_argument("--refine-render", metavar="PNG",
+                   help="output .png: the face crop next to the refined render (first image)")
     return p
 
 
@@ -51,10 +57,16 @@ def run(args):
         raise InputError(f"--landmarks: {len(args.landmarks)} files for {len(args.images)} images")
     if args.iterations < 0:
         raise InputError(f"--iterations must be >= 0, got {args.iterations}")
+    if args.steps < 0:
+        raise InputError(f"--steps must be >= 0, got {args.steps}")
+    if args.refine_render and not args.refine:
+        raise InputError("--refine-render needs --refine")
     images = [Path(p) for p in args.images]
     res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
                             focal_px=args.focal, n_iterations=args.iterations, robust=args.robust,
                             shared_identity=not args.independent, detector=args.detector)
+    if args.refine:
+        res, report = _refine(args, res, report, images)
     if args.overlay:  # first: drawing is the likeliest step to fail
         from ..overlay import write_overlays
 
@@ -69,3 +81,31 @@ def run(args):
           + (f"; wrote {args.out_mesh}" if args.out_mesh else "")
           + (f" {args.report}" if args.report else ""))
     return 0
+
+
+def _refine(args, res, report, images):
+    """Photometric refinement of every frame (:func:`neural.reconstruct.refine`)."""
+    try:
+        from neural.reconstruct import refine
+    except ImportError as e:
+        raise InputError(f"--refine needs the neural extra: pip install -e '.[neural]' ({e})") from None
+    from ..fitting.detect import read_image
+
+    runs = []
+    for i, path in enumerate(images):
+        res, rep, state = refine(read_image(path), res, args.refine, steps=args.steps, frame=i,
+                                 return_state=True)
+        runs.append(rep)
+        if i == 0 and args.refine_render:
+            import numpy as np
+
+            from ..raster import save_image_png
+
+            save_image_png(args.refine_render, np.concatenate([state.target, state.rendered], 1))
+        print(f"{path}: refine {args.refine}: photometric loss {rep['photometric_loss'][0]:.4f} -> "
+              f"{rep['photometric_loss'][-1]:.4f} in {rep['runtime_s']:.1f} s")
+    landmark_sources = report["landmarks"]
+    report = res.to_dict(images=[str(p) for p in images])
+    report["landmarks"] = landmark_sources
+    report["refine"] = runs
+    return res, report
