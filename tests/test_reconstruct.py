@@ -122,3 +122,21 @@ def test_cli_fit_refine_and_edit(data_dir, tmp_path, capsys):
     assert main(["edit", str(img), "--landmarks", str(pts), "--expression", "smile=1",
                  "--out", str(bad)]) == 2
     assert "smile" in capsys.readouterr().err and not bad.exists()
+
+
+def test_ablation_smoke(tmp_path):
+    from neural.ablate import held_out_faces, run_ablation
+
+    torch.manual_seed(0)
+    G = Generator(get_config("tiny"))
+    path = tmp_path / "g.pt"
+    torch.save({"config": G.config.to_dict(), "G_ema": G.state_dict()}, path)
+    model, faces = held_out_faces(1, image_size=96)
+    rep = run_ablation(faces, model, steps=2, generator=path, generator_n0=path, inverter=None,
+                       progress=False)
+    assert set(rep["variants"]) == {"landmark_only", "classical", "gar_full", "gar_no_inverter",
+                                    "gar_lambda_n0"}
+    for v in rep["variants"].values():
+        assert set(v) == {"vertex_mm", "normal_deg", "s_per_image"}
+        assert all(np.isfinite(x) for x in v.values())
+    assert 0 < rep["variants"]["landmark_only"]["vertex_mm"] < 10
