@@ -129,7 +129,6 @@ def model_scan(model, alpha):
 
 
 def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
-    pytest.importorskip("morphable.fitting")
     from evaluation.florence import run_protocol
 
     rng = np.random.default_rng(0)
@@ -165,7 +164,6 @@ def test_model_scan_from_another_model(ict, sfm):
 
 
 def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
-    pytest.importorskip("morphable.fitting")
     pytest.importorskip("eos")
     from evaluation.florence import run_model_scans
 
@@ -262,7 +260,6 @@ def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
 
 def test_detected_landmarks_on_rendered_frames(james, sfm):
     pytest.importorskip("dlib")
-    pytest.importorskip("morphable.raster")
     from evaluation.florence import video_landmarks
     from evaluation.videos import synthetic_video
 
