@@ -52,13 +52,10 @@ _LR = {"alpha": 0.03, "beta": 0.02, "rot": 0.003, "trans": 0.3, "z": 0.03, "nois
 
 
 def default_inverter_path() -> Path | None:
-    """``neural/weights/inverter_tiny.pt`` if committed, else ``runs/inv/inverter.pt`` if
-    present, else None."""
-    here = Path(__file__).resolve().parent
-    for p in (here / "weights" / "inverter_tiny.pt", here.parent / "runs" / "inv" / "inverter.pt"):
-        if p.is_file():
-            return p
-    return None
+    """``neural/weights/inverter_tiny.pt`` if committed, else None (pass ``inverter=`` to
+    use another file, e.g. ``runs/inv/inverter.pt`` of :mod:`neural.train_inverter`)."""
+    p = Path(__file__).resolve().parent / "weights" / "inverter_tiny.pt"
+    return p if p.is_file() else None
 
 
 def face_crop(landmarks) -> tuple[float, float, float]:
