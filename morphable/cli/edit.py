@@ -21,6 +21,8 @@ def add_parser(sub):
     add_model_argument(p)
     p.add_argument("--renderer", choices=("gar", "classical"), default="gar")
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
+    p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
+                                                    "(default: neural/weights/inverter_tiny.pt if present)")
     p.add_argument("--yaw", type=float, help="new yaw, degrees (default: the recovered one)")
     p.add_argument("--pitch", type=float, help="new pitch, degrees")
     p.add_argument("--roll", type=float, help="new roll, degrees")
@@ -63,7 +65,7 @@ def run(args):
 
     res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model)
     fit, report, state = refine(read_image(args.image), res, args.renderer, steps=args.steps,
-                                return_state=True)
+                                inverter=args.inverter or "auto", return_state=True)
     edited = edit(state, yaw=args.yaw, pitch=args.pitch, roll=args.roll, expression=expression)
     img = edited if args.only_edit else np.concatenate([state.target, state.rendered, edited], 1)
     img = img.repeat(args.zoom, 0).repeat(args.zoom, 1)

@@ -37,6 +37,8 @@ def add_parser(sub):
                    help="then refine by inverting a renderer (needs the neural extra; "
                         "gar: generator weights, see neural/README.md)")
     p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
+    p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
+                                                    "(default: neural/weights/inverter_tiny.pt if present)")
     p.add_argument("--refine-render", metavar="PNG",
                    help="output .png: the face crop next to the refined render (first image)")
     return p
@@ -94,7 +96,7 @@ def _refine(args, res, report, images):
     runs = []
     for i, path in enumerate(images):
         res, rep, state = refine(read_image(path), res, args.refine, steps=args.steps, frame=i,
-                                 return_state=True)
+                                 inverter=args.inverter or "auto", return_state=True)
         runs.append(rep)
         if i == 0 and args.refine_render:
             import numpy as np
