@@ -10,6 +10,17 @@ def add_model_argument(parser) -> None:
                         help=f"model name (sfm, ict) or path to a model file/folder (default {DEFAULT_MODEL})")
 
 
+def add_fitting_arguments(parser) -> None:
+    """The landmark-fitting options shared by ``fit`` and ``fit-batch``."""
+    parser.add_argument("--camera", choices=("affine", "perspective"), default="affine")
+    parser.add_argument("--focal", type=float, default=None,
+                        help="focal length in px (perspective; default max(W, H))")
+    parser.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
+    parser.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    parser.add_argument("--detector", choices=("hog", "cnn"), default="hog",
+                        help="dlib face detector for images without landmark files")
+
+
 def model_from(args):
     return load_model(args.model)
 

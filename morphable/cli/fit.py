@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_model_argument, model_from
+from .common import add_fitting_arguments, add_model_argument, model_from
 
 
 def add_parser(sub):
@@ -18,13 +18,9 @@ def add_parser(sub):
     p.add_argument("--landmarks", nargs="+", metavar="PTS",
                    help="iBUG .pts (or .ljson) files, one per image (default: detect with dlib)")
     add_model_argument(p)
-    p.add_argument("--camera", choices=("affine", "perspective"), default="affine")
-    p.add_argument("--focal", type=float, default=None, help="focal length in px (perspective; default max(W, H))")
-    p.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
-    p.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    add_fitting_arguments(p)
     p.add_argument("--independent", action="store_true",
                    help="fit each image on its own; the mesh is the average identity")
-    p.add_argument("--detector", choices=("hog", "cnn"), default="hog", help="dlib face detector")
     p.add_argument("--out-mesh", help="output mesh (.obj with UVs, .ply, .stl)")
     p.add_argument("--report", help="output JSON report")
     p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_model_argument
+from .common import add_fitting_arguments, add_model_argument
 
 
 def add_parser(sub):
@@ -24,14 +24,9 @@ def add_parser(sub):
     add_model_argument(p)
     p.add_argument("--workers", type=int, default=1, help="parallel processes or Dask workers (default 1)")
     p.add_argument("--scheduler", help="'local' (a Dask LocalCluster) or a Dask scheduler tcp://host:port")
-    p.add_argument("--camera", choices=("affine", "perspective"), default="affine")
-    p.add_argument("--focal", type=float, default=None, help="focal length in px (perspective; default max(W, H))")
-    p.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
-    p.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    add_fitting_arguments(p)
     p.add_argument("--independent", action="store_true",
                    help="fit the frames of a subject each on their own")
-    p.add_argument("--detector", choices=("hog", "cnn"), default="hog",
-                   help="dlib face detector for images without landmark files")
     p.add_argument("--mesh-format", choices=("obj", "ply", "stl"), default="obj")
     return p
 
