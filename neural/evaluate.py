@@ -26,9 +26,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from morphable.errors import InputError, MorphableError
+from morphable.errors import MorphableError
 
 from .auxnets import NAMES, load_aux
+from .checkpoint import load_network
 from .config import GARConfig
 from .gar import Generator
 
@@ -39,16 +40,12 @@ __all__ = ["load_generator", "normal_consistency", "landmark_consistency",
 def load_generator(path, ema: bool = True) -> Generator:
     """A Generator (eval mode) from ``generator.pt`` or ``checkpoint.pt`` of neural.train;
     from a checkpoint, ``ema=False`` takes the raw generator instead of its moving average."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: generator weights not found")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    def build(ckpt):
         G = Generator(GARConfig.from_dict(ckpt["config"]))
         G.load_state_dict(ckpt["G_ema"] if ema and "G_ema" in ckpt else ckpt["G"])
-    except (KeyError, RuntimeError, EOFError, OSError) as e:
-        raise InputError(f"{path}: not a GAR checkpoint ({str(e).splitlines()[0]})") from None
-    return G.eval().requires_grad_(False)
+        return G
+
+    return load_network(path, build, "generator weights not found", "not a GAR checkpoint")
 
 
 @torch.no_grad()

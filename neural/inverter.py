@@ -30,8 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from morphable.errors import InputError
 
+from .checkpoint import load_network
 from .config import GARConfig
 from .gar import EqualConv2d, EqualLinear, lrelu
 
@@ -109,14 +109,10 @@ def save_inverter(V, path, **meta) -> Path:
 
 def load_inverter(path) -> Inverter:
     """An Inverter (eval mode, frozen) from :func:`save_inverter`'s file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: inverter weights not found")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    def build(ckpt):
         V = Inverter(GARConfig.from_dict(ckpt["config"]))
         V.load_state_dict(ckpt["state_dict"])
-    except (KeyError, RuntimeError, EOFError, OSError) as e:
-        raise InputError(f"{path}: not an inverter checkpoint ({str(e).splitlines()[0]})") from None
-    V.meta = ckpt.get("meta", {})
-    return V.eval().requires_grad_(False)
+        V.meta = ckpt.get("meta", {})
+        return V
+
+    return load_network(path, build, "inverter weights not found", "not an inverter checkpoint")
