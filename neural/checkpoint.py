@@ -1,6 +1,7 @@
 """Loading a network from a checkpoint file with one-line errors that name the file."""
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
@@ -24,6 +25,7 @@ def load_network(path, build, missing: str, invalid: str):
         raise InputError(f"{path}: {missing}")
     try:
         net = build(torch.load(path, map_location="cpu", weights_only=True))
-    except (KeyError, RuntimeError, EOFError, OSError) as e:
+    # a truncated or foreign file fails inside torch.load's unpickler
+    except (KeyError, RuntimeError, EOFError, OSError, pickle.UnpicklingError) as e:
         raise InputError(f"{path}: {invalid} ({str(e).splitlines()[0]})") from None
     return net.eval().requires_grad_(False)

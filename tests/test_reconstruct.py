@@ -140,3 +140,16 @@ def test_ablation_smoke(tmp_path):
         assert set(v) == {"vertex_mm", "normal_deg", "s_per_image"}
         assert all(np.isfinite(x) for x in v.values())
     assert 0 < rep["variants"]["landmark_only"]["vertex_mm"] < 10
+
+
+def test_corrupt_weight_files_give_one_line_errors(tmp_path):
+    from morphable import InputError
+    from neural.evaluate import load_generator
+    from neural.inverter import load_inverter
+
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    for load, text in ((load_generator, "not a GAR checkpoint"), (load_inverter, "not an inverter checkpoint")):
+        with pytest.raises(InputError, match=text) as e:
+            load(bad)
+        assert str(e.value).startswith(str(bad)) and "\n" not in str(e.value)
