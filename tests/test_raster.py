@@ -224,6 +224,40 @@ def test_partially_behind_perspective_camera_clips():
     assert vis.mask.any() and (vis.depth[vis.mask] > 0).all()
 
 
+@pytest.mark.parametrize("kind", ["affine", "perspective"])
+@pytest.mark.parametrize("supersample", [1, 2])
+@pytest.mark.parametrize("case", ["inside", "partly outside", "partly behind"])
+def test_window_casting_matches_full_frame(sfm, monkeypatch, kind, supersample, case):
+    """Only the samples in the projected bounding box are cast; casting every sample gives
+    the same triangles, barycentrics and depths, bit for bit."""
+    import importlib
+
+    # the package's `visibility` function hides the module of the same name
+    vis_module = importlib.import_module("morphable.raster.visibility")
+    if case == "partly behind" and kind == "affine":
+        pytest.skip("an affine camera sits at infinity")
+    cam = Camera.looking_at_face((48, 40), yaw=25, kind=kind, face_width_px=30)
+    towards_camera = -cam.rotation.T @ cam.translation / 600
+    shift = {"inside": 0, "partly outside": np.array([-70, 60, 0]),
+             "partly behind": 600 * towards_camera}
+    v = sfm.mean.astype(np.float64) + shift[case]
+    vis = visibility(v, sfm.triangles, cam, supersample=supersample)
+    window = vis_module._window(cam, cam.to_camera(v), 48, 40)
+    if case == "partly behind":
+        assert (cam.depth(v) <= 0).any() and window == (0, 48, 0, 40)
+    else:
+        assert window != (0, 48, 0, 40)
+    if case == "partly outside":
+        assert vis.mask[0].any() and vis.mask[:, 0].any()  # cut by the top left corner
+    monkeypatch.setattr(vis_module, "_window", lambda camera, points, w, h: (0, w, 0, h))
+    full = visibility(v, sfm.triangles, cam, supersample=supersample)
+    assert vis.mask.sum() > 50
+    np.testing.assert_array_equal(vis.triangle_id, full.triangle_id)
+    np.testing.assert_array_equal(vis.barycentric, full.barycentric)
+    np.testing.assert_array_equal(vis.depth, full.depth)
+    np.testing.assert_array_equal(vis.pixels, np.flatnonzero(full.triangle_id >= 0))
+
+
 def test_lambertian_plane_and_texture():
     cam = Camera(kind="affine", translation=[0, 0, -300], scale=8 / 100, image_size=(8, 8))
     light = DirectionalLight(direction=(0, 1, 1), color=0.5)
