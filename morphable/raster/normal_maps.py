@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import InputError
 from ..normals import vertex_normals
 from .interpolate import _is_torch, interpolate
-from .visibility import Visibility, check_mesh, uv_visibility, visibility
+from .visibility import Visibility, _mesh, check_mesh, uv_visibility, visibility
 
 __all__ = ["normal_map", "uv_normal_map", "uv_layout", "tangent_frames"]
 
@@ -127,15 +127,25 @@ def _foreground_normal_map(vertices, triangles, vis, frame, weighting):
     """The numpy normal map of a visibility without supersampling: interpolation and
     normalisation run on the foreground samples only, in float32 (the barycentrics already
     are: the result differs from a float64 pass by about 1e-7), into a map of the dtype of
-    ``vertices``."""
-    n = vertex_normals(vertices, triangles, weighting=weighting)
+    ``vertices``. The vertex normals of a mesh that :func:`visibility` has just seen come from
+    its cache."""
+    mesh = _mesh(vertices, triangles, add=False)
+    if mesh is None:
+        n = vertex_normals(vertices, triangles, weighting=weighting)
+    else:
+        n = mesh.normals(weighting)
     if frame == "camera":
         n = n @ vis.camera.rotation.T.astype(n.dtype)
     fg = vis.matrix(len(n), dtype=np.float32, foreground=True) @ n.astype(np.float32)
-    fg /= np.sqrt(np.einsum("ij,ij->i", fg, fg) + np.float32(_TINY))[:, None]
+    norm = fg[:, 0] * fg[:, 0]
+    norm += fg[:, 1] * fg[:, 1]
+    norm += fg[:, 2] * fg[:, 2]
+    norm += np.float32(_TINY)
+    np.sqrt(norm, out=norm)
     out = np.zeros((vis.shape[0] * vis.shape[1], 3), dtype=np.result_type(n.dtype, np.float32))
-    for c in range(3):  # columns: numpy scatters rows of 3 several times slower
-        out[:, c][vis.pixels] = fg[:, c]
+    # column by column (numpy scatters rows of 3 several times slower), normalising on the way
+    for c in range(3):
+        out[:, c][vis.pixels] = fg[:, c] / norm
     return out.reshape(vis.shape + (3,))
 
 

@@ -1,9 +1,9 @@
 """Visibility: per pixel (or texel) the triangle seen and its barycentric coordinates.
 
 Rays are cast with open3d's ``RaycastingScene`` (Embree, CPU, multi-threaded). Only the
-pixels inside the mesh's projected bounding box are cast, and the Embree scene of a mesh is
-cached (keyed by the bytes of its vertices and triangles), so rendering the same mesh from
-many cameras builds it once.
+pixels inside the mesh's projected bounding box are cast, only the hits are kept, and the
+Embree scene and vertex normals of the last few meshes are cached (found by comparing their
+vertices and triangles), so rendering the same mesh from many cameras builds them once.
 
 Conventions
 -----------
@@ -33,8 +33,8 @@ from ..errors import InputError
 
 __all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh"]
 
-_SCENES: "OrderedDict[bytes, object]" = OrderedDict()
-_SCENE_CACHE_SIZE = 4
+_MESHES: "list[_Mesh]" = []  # most recently used last
+_MESH_CACHE_SIZE = 4
 _UV_TABLES: "OrderedDict[bytes, Visibility]" = OrderedDict()
 _UV_CACHE_SIZE = 8
 _MAX_SAMPLES = 1 << 27  # 134 M samples: about 10 GB of rays and results
@@ -265,21 +265,63 @@ def _import_open3d():
     return open3d
 
 
+class _Mesh:
+    """A mesh seen before: its Embree scene and vertex normals, each built on first use.
+
+    Found again by comparing the arrays themselves (a few microseconds), not a hash of them.
+    """
+
+    def __init__(self, vertices, triangles):
+        self.vertices, self.triangles = vertices.copy(), triangles.copy()
+        self._normals = {}
+
+    def matches(self, vertices, triangles) -> bool:
+        return (vertices.dtype == self.vertices.dtype and triangles.dtype == self.triangles.dtype
+                and np.array_equal(vertices, self.vertices)
+                and np.array_equal(triangles, self.triangles))
+
+    @cached_property
+    def scene(self):
+        o3d = _import_open3d()
+        sc = o3d.t.geometry.RaycastingScene()
+        sc.add_triangles(o3d.core.Tensor(np.ascontiguousarray(self.vertices, dtype=np.float32)),
+                         o3d.core.Tensor(np.ascontiguousarray(self.triangles, dtype=np.uint32)))
+        return sc
+
+    def normals(self, weighting: str) -> np.ndarray:
+        """(V, 3) unit vertex normals (read-only), see :func:`morphable.normals.vertex_normals`."""
+        if weighting not in self._normals:
+            from ..normals import vertex_normals
+
+            n = vertex_normals(self.vertices, self.triangles, weighting=weighting)
+            n.flags.writeable = False
+            self._normals[weighting] = n
+        return self._normals[weighting]
+
+
+def _mesh(vertices, triangles, add: bool = True):
+    """The cached :class:`_Mesh` of these arrays; a new one (cached if ``add``, else None)
+    when they were not seen among the last few meshes."""
+    v, t = np.asarray(vertices), np.asarray(triangles)
+    with _LOCK:
+        for i, m in enumerate(_MESHES):
+            if m.matches(v, t):
+                _MESHES.append(_MESHES.pop(i))
+                return m
+        if not add:
+            return None
+        m = _Mesh(v, t)
+        _MESHES.append(m)
+        del _MESHES[:-_MESH_CACHE_SIZE]
+    return m
+
+
 def scene(vertices, triangles):
     """The (cached) Embree scene of a mesh in world coordinates (float32).
 
     ``vertices`` (V, 3) mm, ``triangles`` (F, 3) int -> ``open3d.t.geometry.RaycastingScene``.
     """
-    o3d = _import_open3d()
-    v32 = np.ascontiguousarray(vertices, dtype=np.float32)
-    t32 = np.ascontiguousarray(triangles, dtype=np.uint32)
-
-    def make():
-        sc = o3d.t.geometry.RaycastingScene()
-        sc.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(t32))
-        return sc
-
-    return _cached(_SCENES, _SCENE_CACHE_SIZE, _key(v32, t32), make)
+    return _mesh(vertices, triangles).scene
 
 
 def _barycentric(uv, seen):
