@@ -258,6 +258,30 @@ def test_window_casting_matches_full_frame(sfm, monkeypatch, kind, supersample, 
     np.testing.assert_array_equal(vis.pixels, np.flatnonzero(full.triangle_id >= 0))
 
 
+def test_mesh_cache_follows_the_vertices(sfm):
+    """The scene and vertex normals are reused for equal arrays, rebuilt for changed ones
+    (also when changed in place)."""
+    import importlib
+
+    from morphable.normals import vertex_normals
+
+    vis_module = importlib.import_module("morphable.raster.visibility")
+    v, t = sfm.mean.astype(np.float64), sfm.triangles
+    cam = Camera.looking_at_face((64, 64), yaw=20, kind="perspective")
+    first = vis_module.scene(v, t)
+    assert vis_module.scene(v.copy(), t.copy()) is first
+    fresh = normal_map(v, t, cam, vis=visibility(v, t, cam))
+    np.testing.assert_array_equal(normal_map(v, t, cam), fresh)
+    v[:, 2] *= 1.5  # in place: a deeper face
+    assert vis_module.scene(v, t) is not first
+    vis = visibility(v, t, cam)
+    n = vertex_normals(v, t) @ cam.rotation.T
+    ref = interpolate(vis, n)
+    ref /= np.maximum(np.linalg.norm(ref, axis=-1, keepdims=True), 1e-300)
+    np.testing.assert_allclose(normal_map(v, t, cam), ref, atol=1e-6)
+    assert np.abs(normal_map(v, t, cam) - fresh).max() > 0.1
+
+
 def test_lambertian_plane_and_texture():
     cam = Camera(kind="affine", translation=[0, 0, -300], scale=8 / 100, image_size=(8, 8))
     light = DirectionalLight(direction=(0, 1, 1), color=0.5)
