@@ -10,8 +10,10 @@ run), the fastest run in parentheses. Columns:
 
 - visibility: ray casting with the mesh's Embree scene cached (only the camera changed).
 - +rebuild: visibility when the vertices changed since the last call (the scene is rebuilt).
-- bake numpy: ``normal_map`` from vertices with a cached scene (visibility + vertex normals +
-  interpolation), i.e. one screen normal map.
+- bake numpy: ``normal_map`` of a mesh seen before (only the camera changed): visibility and
+  interpolation, with the mesh's Embree scene and vertex normals taken from the cache.
+- bake new: ``normal_map`` when the vertices changed since the last call (scene and vertex
+  normals built again).
 - torch fwd / fwd+bwd: the differentiable ``normal_map`` (float32, visibility fixed) and its
   backward pass to the vertices: one gradient step of a fit that keeps the visibility.
 - step: a gradient step that also recomputes the visibility for the new vertices.
@@ -91,6 +93,8 @@ def bench(repeat=7, sizes=(256, 512), trimesh_size=256, threads=1, trimesh_numpy
             r["+rebuild"] = _median_ms(lambda: visibility(next(it), t, cam), repeat)
             r["bake numpy"], r["bake CPU"] = _median_ms(lambda: normal_map(v, t, cam), repeat,
                                                         cpu=True)
+            it = iter(jitter)
+            r["bake new"] = _median_ms(lambda: normal_map(next(it), t, cam), repeat)
             vt = torch.tensor(v, dtype=torch.float32, requires_grad=True)
             tt = torch.as_tensor(t)
             target = torch.zeros(size, size, 3)
@@ -212,7 +216,7 @@ def compare_trimesh(v, t, cam, vis, repeat=2, numpy_backend=False):
 
 
 COLUMNS = ["mesh", "vertices", "size", "visibility", "+rebuild", "bake numpy", "bake CPU",
-           "torch fwd", "torch fwd+bwd", "fwd+bwd CPU", "step"]
+           "bake new", "torch fwd", "torch fwd+bwd", "fwd+bwd CPU", "step"]
 
 
 def table(rows) -> str:
