@@ -125,10 +125,8 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
 
 def _foreground_normal_map(vertices, triangles, vis, frame, weighting):
     """The numpy normal map of a visibility without supersampling: interpolation and
-    normalisation run on the foreground samples only, in float32 (the barycentrics already
-    are: the result differs from a float64 pass by about 1e-7), into a map of the dtype of
-    ``vertices``. The vertex normals of a mesh that :func:`visibility` has just seen come from
-    its cache."""
+    normalisation run on the foreground samples only. The vertex normals of a mesh that
+    :func:`visibility` has just seen come from its cache."""
     mesh = _mesh(vertices, triangles, add=False)
     if mesh is None:
         n = vertex_normals(vertices, triangles, weighting=weighting)
@@ -136,13 +134,14 @@ def _foreground_normal_map(vertices, triangles, vis, frame, weighting):
         n = mesh.normals(weighting)
     if frame == "camera":
         n = n @ vis.camera.rotation.T.astype(n.dtype)
-    fg = vis.matrix(len(n), dtype=np.float32, foreground=True) @ n.astype(np.float32)
+    dtype = np.result_type(n.dtype, np.float32)
+    fg = vis.matrix(len(n), dtype=dtype, foreground=True) @ n.astype(dtype, copy=False)
     norm = fg[:, 0] * fg[:, 0]
     norm += fg[:, 1] * fg[:, 1]
     norm += fg[:, 2] * fg[:, 2]
-    norm += np.float32(_TINY)
+    norm += _TINY
     np.sqrt(norm, out=norm)
-    out = np.zeros((vis.shape[0] * vis.shape[1], 3), dtype=np.result_type(n.dtype, np.float32))
+    out = np.zeros((vis.shape[0] * vis.shape[1], 3), dtype=dtype)
     # column by column (numpy scatters rows of 3 several times slower), normalising on the way
     for c in range(3):
         out[:, c][vis.pixels] = fg[:, c] / norm
