@@ -179,12 +179,12 @@ def _scene(vertices, triangles):
 class _Silhouette:
     """Candidate scan vertices for each jaw landmark: a horizontal band of the face from the
     landmark towards the midline and the front. Under a pose, the candidate farthest out in
-    the image is where the face outline crosses that height (the landmark itself when that
-    side faces the camera)."""
+    the image (towards the landmark's side of the face) is where the face outline crosses
+    that height (the landmark itself when that side faces the camera)."""
 
     def __init__(self, vertices, landmarks, frame: Similarity, band_mm: float = 3.0):
         used = np.isfinite(landmarks[JAW]).all(1)
-        self.ids = {}
+        self.ids, self.side = {}, {}
         v = frame.apply(vertices)
         lm = frame.apply(np.where(np.isfinite(landmarks), landmarks, 0.0))
         mid = lm[30, 0]
@@ -197,6 +197,7 @@ class _Silhouette:
                                   & ((v[:, 0] - mid) * side >= 0)
                                   & ((v[:, 0] - mid) * side <= abs(x - mid) + band_mm))
             self.ids[j] = cand
+            self.side[j] = side or 1.0
         self.side_axis = frame.inverse().rotation @ np.array([1.0, 0.0, 0.0])
 
     def points(self, vertices, landmarks, camera: Camera, centre) -> np.ndarray:
@@ -207,8 +208,9 @@ class _Silhouette:
         for j, cand in self.ids.items():
             pts = np.vstack([landmarks[j][None], vertices[cand]])
             uv = camera.project(pts)
-            side = np.sign((uv[0] - c) @ axis) or 1.0
-            out[j] = uv[np.argmax(((uv - c) @ axis) * side)]
+            # the side of the face, not of the image centre: at a large yaw a far-side jaw
+            # point projects across the centre, and "outwards" must not flip to the midline
+            out[j] = uv[np.argmax(((uv - c) @ axis) * self.side[j])]
         return out
 
 

@@ -97,7 +97,8 @@ def test_jaw_points_sit_on_the_silhouette(james, sfm):
 
     frame = frontal_frame(james.landmarks, sfm.landmark_positions())
     centre = frame.apply(np.nanmean(james.landmarks, 0)[None])[0]
-    for yaw in (-40.0, 40.0):
+    # at 65 degrees the far jaw projects across the face's centre: "outwards" is still the far side
+    for yaw in (-65.0, -40.0, 40.0, 65.0):
         c = Camera.looking_at_face((512, 512), yaw=yaw, kind="affine", center=centre)
         cam = Camera(kind="affine", rotation=c.rotation @ frame.rotation,
                      translation=c.rotation @ frame.translation + c.translation, scale=c.scale,
