@@ -119,10 +119,12 @@ class SyntheticFaces:
 
     # --- random parameters --------------------------------------------------------------
     def _random_identity(self, rng) -> dict:
-        """Shape coefficients and a procedural albedo (per-vertex RGB in [0, 1])."""
+        """Shape coefficients, a procedural albedo (per-vertex RGB in [0, 1]) and its skin
+        tone in units of its standard deviation (light -> dark)."""
         m = self.model
         alpha = rng.standard_normal(m.n_identity) * self.identity_std
         k = rng.uniform(0, len(_SKIN) - 1)
+        tone = (k - (len(_SKIN) - 1) / 2) / ((len(_SKIN) - 1) / 12 ** 0.5)
         base = (1 - k % 1) * _SKIN[int(k)] + (k % 1) * _SKIN[min(int(k) + 1, len(_SKIN) - 1)]
         # low-frequency blotches: a few random plane waves over the mean shape (mm)
         x = m.mean / 100.0
@@ -137,7 +139,7 @@ class SyntheticFaces:
             d = np.min(np.linalg.norm(m.mean[:, None] - pts[None], axis=-1), axis=1)
             w = np.exp(-(d / radius) ** 2)[:, None]
             albedo = albedo * (1 - w + w * np.asarray(tint))
-        return {"identity": alpha, "albedo": np.clip(albedo, 0.02, 1.0)}
+        return {"identity": alpha, "albedo": np.clip(albedo, 0.02, 1.0), "tone": tone}
 
     def _random_expression(self, rng) -> np.ndarray:
         m = self.model
@@ -203,7 +205,9 @@ class SyntheticFaces:
         -------
         dict with ``image`` (B, 3, R, R) in [-1, 1], ``normals`` (B, 3, R, R), ``mask``
         (B, 1, R, R) in [0, 1], ``landmarks`` (B, 68, 2) px (NaN where undefined),
-        ``identity_id`` (B,) int64 (-1 without a pool), ``pose`` (B, 3) degrees; with
+        ``identity_id`` (B,) int64 (-1 without a pool), ``identity`` (B, K) the identity
+        coefficients and ``skin_tone`` (B,) the albedo's tone, both in units of their
+        standard deviation, ``pose`` (B, 3) degrees; with
         ``pair=True`` also ``image_b``, ``normals_b``, ``mask_b``, ``landmarks_b``,
         ``pose_b``: the same identities (and albedo) under another expression, pose,
         light and background.
@@ -211,7 +215,7 @@ class SyntheticFaces:
         rng = np.random.default_rng(rng)
         views = ("", "_b") if pair else ("",)
         out = {f"{k}{v}": [] for v in views for k in ("image", "normals", "mask", "landmarks", "pose")}
-        out["identity_id"] = []
+        out["identity_id"], out["identity"], out["skin_tone"] = [], [], []
         for _ in range(batch_size):
             if self.n_identities is None:
                 ident, iid = self._random_identity(rng), -1
@@ -219,6 +223,8 @@ class SyntheticFaces:
                 iid = int(rng.integers(self.n_identities))
                 ident = self._pool[iid]
             out["identity_id"].append(iid)
+            out["identity"].append(ident["identity"])
+            out["skin_tone"].append(ident["tone"])
             for v in views:
                 pose = rng.uniform(-1, 1, 3) * self.pose_max
                 r = self.render(ident["identity"], ident["albedo"], self._random_expression(rng),

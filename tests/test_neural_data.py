@@ -35,6 +35,12 @@ def test_synthetic_batch_labels(batch):
     assert (lm[ok] > 0).all() and (lm[ok] < 31).all()
     # pairs: same identity in another pose
     assert (batch["identity_id"] >= 0).all() and (batch["identity_id"] < 3).all()
+    data = SyntheticFaces(resolution=32, n_identities=3, seed=1)      # the fixture's pool
+    assert batch["identity"].shape == (4, data.model.n_identity) and batch["skin_tone"].shape == (4,)
+    assert (batch["skin_tone"].abs() <= 3 ** 0.5).all()          # uniform, unit variance
+    for i, iid in enumerate(batch["identity_id"].tolist()):
+        torch.testing.assert_close(batch["identity"][i],
+                                   torch.as_tensor(data._pool[iid]["identity"], dtype=torch.float32))
     assert not torch.allclose(batch["pose"], batch["pose_b"])
     assert not torch.allclose(batch["normals"], batch["normals_b"])
 

@@ -110,3 +110,21 @@ def test_committed_aux_weights_quality(data_dir):
     assert float((pred & face).sum() / (pred | face).sum()) > 0.9
     ok = ~torch.isnan(b["landmarks"][..., 0])
     assert float((lm - b["landmarks"]).norm(dim=-1)[ok].mean()) < 3.0
+
+
+def test_committed_identity_net_separates_unseen_faces(data_dir):
+    """R: two views of one unseen face are closer than views of different faces."""
+    pytest.importorskip("open3d")
+    from neural.auxnets import default_weights_path, load_aux
+    from neural.data import SyntheticFaces
+
+    if not default_weights_path("R").is_file():
+        pytest.skip("no committed R weights")
+    R = load_aux("R")
+    p = SyntheticFaces(resolution=64, seed=77).sample(12, rng=[98, 2**40], pair=True)
+    with torch.no_grad():
+        ea, eb = R(p["image"]), R(p["image_b"])
+    same = (ea * eb).sum(1)
+    diff = (ea @ eb.T)[~torch.eye(12, dtype=torch.bool)]
+    auc = float((same[:, None] > diff[None, :]).float().mean())
+    assert auc > 0.75 and float(same.mean()) > float(diff.mean()) + 0.3

@@ -248,7 +248,7 @@ def test_aux_shapes_and_frozen():
     assert nets["L"](x).shape == (2, 68, 64, 64)
     lm = nets["L"].landmarks(x)
     assert lm.shape == (2, 68, 2) and (lm >= 0).all() and (lm <= 63).all()
-    assert nets["R"](x).shape == (2, 128)
+    assert nets["R"](x).shape == (2, 16) and nets["R"].predict(x).shape == (2, 16)
     for net in nets.values():
         assert not net.training and not any(p.requires_grad for p in net.parameters())
 

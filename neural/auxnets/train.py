@@ -3,11 +3,14 @@
 
 Losses: N ``1 - cos`` on face pixels (coverage > 0.5); P binary cross-entropy against the
 pixel coverage; L mean pixel distance of the soft-argmax landmarks to the projected model
-landmarks (those the 3DMM defines); R cosine-softmax classification (scale 16) over a fixed
-pool of synthetic identities whose pose, expression, light and background vary (the head
-is dropped after training). Validation metrics on a held-out batch (fresh identities for R)
+landmarks (those the 3DMM defines); R mean squared error of the regressed skin tone and
+leading identity coefficients (std units) of faces whose pose, expression, light and
+background vary.
+Every sample is a new identity unless ``--identities N`` draws them from a pool. Validation
+metrics on a held-out batch (fresh identities for R)
 are stored in each checkpoint's ``meta["metrics"]``: normal error (degrees), mask IoU,
-landmark error (px), identity verification AUC. ``--nets R`` trains a subset.
+landmark error (px), identity verification AUC and the fraction of identity-coefficient
+variance R explains. ``--nets R`` trains a subset.
 """
 from __future__ import annotations
 
@@ -26,15 +29,21 @@ from morphable.errors import MorphableError
 
 from . import NAMES, build_aux, save_aux
 
-__all__ = ["AuxTrainer", "main"]
+__all__ = ["AuxTrainer", "identity_labels", "main"]
 
 log = logging.getLogger("neural.auxnets.train")
+
+
+def identity_labels(batch, dim: int) -> torch.Tensor:
+    """R's regression target (B, dim): skin tone, then the first ``dim - 1`` identity
+    coefficients (std units)."""
+    return torch.cat([batch["skin_tone"][:, None], batch["identity"][:, :dim - 1]], 1)
 
 
 class AuxTrainer:
     """Joint training of N, P, L, R on one stream of synthetic batches."""
 
-    def __init__(self, resolution=64, width=16, n_identities=500, batch_size=16, lr=2e-3,
+    def __init__(self, resolution=64, width=16, n_identities=None, batch_size=16, lr=2e-3,
                  seed=0, model="sfm", nets=NAMES):
         from ..data import SyntheticFaces
 
@@ -43,10 +52,6 @@ class AuxTrainer:
         self.names = tuple(nets)
         self.nets = {n: build_aux(n, width) for n in self.names}
         params = [p for net in self.nets.values() for p in net.parameters()]
-        if "R" in self.nets:
-            dim = self.nets["R"].fc.out_features
-            self.id_head = torch.nn.Parameter(torch.randn(n_identities, dim) * 0.01)
-            params.append(self.id_head)
         self.opt = torch.optim.Adam(params, lr=lr)
         self.data = SyntheticFaces(model=model, resolution=resolution, n_identities=n_identities,
                                    seed=seed)
@@ -69,9 +74,8 @@ class AuxTrainer:
             target = batch["landmarks"][:, self.landmark_index]
             out["L"] = ((lm - target).pow(2).sum(-1) + 1e-8).sqrt().mean()
         if "R" in self.nets:
-            emb = self.nets["R"](img)
-            logits = 16.0 * emb @ F.normalize(self.id_head, dim=1).T
-            out["R"] = F.cross_entropy(logits, batch["identity_id"])
+            pred = self.nets["R"].predict(img)
+            out["R"] = F.mse_loss(pred, identity_labels(batch, pred.shape[1]))
         return out
 
     def train_step(self) -> dict:
@@ -109,15 +113,18 @@ class AuxTrainer:
             # verification on unseen identities: the AUC of same-identity pairs (two views)
             # against different-identity pairs
             p = self.fresh.sample(n, rng=[self.seed, 2**31 + 1], pair=True)
-            ea, eb = self.nets["R"](p["image"]), self.nets["R"](p["image_b"])
+            R = self.nets["R"]
+            pred = R.predict(p["image"])
+            truth = identity_labels(p, pred.shape[1])
+            explained = 1 - float((pred - truth).pow(2).mean() / truth.pow(2).mean())
+            ea, eb = F.normalize(pred, dim=1), R(p["image_b"])
             same = (ea * eb).sum(1)
-            sim = ea @ eb.T
-            other = p["identity_id"][:, None] != p["identity_id"][None, :]
-            diff = sim[other]
+            diff = (ea @ eb.T)[~torch.eye(n, dtype=torch.bool)]
             auc = (same[:, None] > diff[None, :]).float().mean()
             out["R"] = {"identity_verification_auc": float(auc),
                         "identity_cos_same": float(same.mean()),
-                        "identity_cos_diff": float(diff.mean())}
+                        "identity_cos_diff": float(diff.mean()),
+                        "identity_variance_explained": explained}
         return out
 
     def save(self, out, metrics=None) -> list:
@@ -137,7 +144,8 @@ def main(argv=None) -> int:
     p.add_argument("--batch-size", type=int, default=16)
     p.add_argument("--resolution", type=int, default=64)
     p.add_argument("--width", type=int, default=16)
-    p.add_argument("--identities", type=int, default=500)
+    p.add_argument("--identities", type=int, help="draw identities from a pool of this size "
+                   "(default: a new identity per sample)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--save-every", type=int, default=200)
     p.add_argument("--nets", default="NPLR", help="which networks to train, e.g. R")
