@@ -3,19 +3,21 @@
 
 Variants (paper Table 3 style):
 
-- ``landmark_only``: :func:`morphable.fitting.fit_landmarks` on the projected landmarks
+- ``landmark-only``: :func:`morphable.fitting.fit_landmarks` on the projected landmarks
   (plus Gaussian pixel noise, ``--landmark-noise``);
 - ``classical``: then :func:`neural.reconstruct.refine` with the Lambertian + SH renderer;
-- ``gar_full``: refine with the GAR, ``z`` initialised by the inverter V;
-- ``gar_no_inverter``: the same without V (``z`` from a fixed seed);
-- ``gar_lambda_n0``: the GAR trained with lambda_n = 0 (``--generator-n0``), with V.
+- ``gar``: refine with the GAR, ``z`` initialised by the inverter V;
+- ``gar-no-initial``: the same without V (``z`` from a fixed seed; paper "w/o initial");
+- ``gar-no-norm-cycle``: the GAR trained with lambda_n = 0 (``--generator-n0``, default the
+  committed ``weights/gar_tiny_no_norm_cycle.pt``), with V (paper "w/o norm-cycle").
 
 Each face: random SFM identity, expression, pose, procedural albedo, light and background
 (:class:`neural.data.SyntheticFaces`, another seed than training), rendered at
 ``--image-size`` px. Metrics per variant, averaged over the faces: ``vertex_mm`` (mean
 distance between the recovered and true meshes in the model frame), ``normal_deg`` (mean
-angle between their vertex normals), ``s_per_image``. The JSON records which generator and
-inverter weights were used.
+angle between their vertex normals), ``s_per_image``; ``curves``: the vertex error against
+optimisation steps and seconds (landmark fit included) of each refining variant, drawn by
+``--plot``. The JSON records which generator and inverter weights were used.
 """
 from __future__ import annotations
 
@@ -27,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["held_out_faces", "geometry_errors", "run_ablation", "main"]
+__all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves",
+           "default_no_norm_cycle_path", "main"]
 
 
 def held_out_faces(n: int, image_size: int = 256, seed: int = 12345):
@@ -60,8 +63,20 @@ def geometry_errors(model, fit, true_vertices) -> tuple[float, float]:
     return d, float(ang.mean())
 
 
-def run_ablation(faces, model, *, steps=60, generator=None, generator_n0=None, inverter="auto",
+def default_no_norm_cycle_path() -> Path | None:
+    """``neural/weights/gar_tiny_no_norm_cycle.pt`` (the lambda_n = 0 generator) if committed."""
+    p = Path(__file__).resolve().parent / "weights" / "gar_tiny_no_norm_cycle.pt"
+    return p if p.is_file() else None
+
+
+def _vertex_error(model, alpha, beta, true_vertices) -> float:
+    v = model.vertices(np.asarray(alpha), np.asarray(beta))
+    return float(np.linalg.norm(v - true_vertices, axis=1).mean())
+
+
+def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto", inverter="auto",
                  landmark_noise=1.0, seed=0, progress=True) -> dict:
+    from morphable.errors import InputError
     from morphable.fitting import fit_landmarks
 
     from .reconstruct import default_inverter_path, refine
@@ -69,20 +84,23 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0=None, i
 
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter
-    variants = {"landmark_only": None, "classical": ("classical", None)}
+    n0 = default_no_norm_cycle_path() if generator_n0 == "auto" else generator_n0
+    variants = {"landmark-only": None, "classical": ("classical", None)}
     notes = {}
     try:
         gar = GARRenderer(weights=generator)
-        variants["gar_full"] = (gar, inv)
-        variants["gar_no_inverter"] = (gar, None)
+        variants["gar"] = (gar, inv)
+        variants["gar-no-initial"] = (gar, None)
         notes["generator"] = gar.weights
-    except Exception as e:       # no weights: the GAR variants are skipped and say why
+    except InputError as e:       # no weights: the GAR variants are skipped and say why
         notes["generator"] = f"unavailable ({e})"
-    if generator_n0:
-        variants["gar_lambda_n0"] = (GARRenderer(weights=generator_n0), inv)
-        notes["generator_n0"] = str(generator_n0)
+    if n0:
+        variants["gar-no-norm-cycle"] = (GARRenderer(weights=n0), inv)
+        notes["generator_n0"] = str(n0)
     notes["inverter"] = str(inv) if inv else None
     results = {k: {"vertex_mm": [], "normal_deg": [], "s_per_image": []} for k in variants}
+    every = max(1, steps // 10)
+    curves = {k: {"vertex_mm": [], "seconds": []} for k, spec in variants.items() if spec}
     for i, face in enumerate(faces):
         lm = face["landmarks"] + rng.normal(0, landmark_noise, face["landmarks"].shape)
         S = face["image"].shape[0]
@@ -94,8 +112,12 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0=None, i
             if spec is None:
                 res, secs = fit, t_fit
             else:
-                res, _ = refine(face["image"], fit, spec[0], steps=steps, inverter=spec[1])
+                res, rep = refine(face["image"], fit, spec[0], steps=steps, inverter=spec[1],
+                                  trace_every=every)
                 secs = t_fit + time.perf_counter() - t
+                curves[name]["vertex_mm"].append(
+                    [_vertex_error(model, p["alpha"], p["beta"], face["vertices"]) for p in rep["trace"]])
+                curves[name]["seconds"].append([t_fit + p["seconds"] for p in rep["trace"]])
             d, a = geometry_errors(model, res, face["vertices"])
             for k, v in zip(("vertex_mm", "normal_deg", "s_per_image"), (d, a, secs)):
                 results[name][k].append(v)
@@ -103,8 +125,40 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0=None, i
             print(f"face {i + 1}/{len(faces)}: " + ", ".join(
                 f"{k} {v['vertex_mm'][-1]:.2f} mm" for k, v in results.items()), file=sys.stderr)
     table = {k: {m: round(float(np.mean(v)), 3) for m, v in r.items()} for k, r in results.items()}
-    return {"variants": table, "faces": len(faces), "steps": steps,
+    steps_traced = list(range(0, steps, every)) + [steps]
+    curve = {k: {"step": steps_traced,
+                 "seconds": np.round(np.mean(c["seconds"], axis=0), 3).tolist(),
+                 "vertex_mm": np.round(np.mean(c["vertex_mm"], axis=0), 3).tolist()}
+             for k, c in curves.items() if c["vertex_mm"]}
+    return {"variants": table, "curves": curve, "faces": len(faces), "steps": steps,
             "landmark_noise_px": landmark_noise, **notes}
+
+
+def plot_curves(report: dict, path) -> None:
+    """Vertex error (mm) against seconds per image, one line per refining variant, the
+    landmark-only fit as a point."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from morphable.io.atomic import atomic_path
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    lo = report["variants"].get("landmark-only")
+    if lo:
+        ax.plot([lo["s_per_image"]], [lo["vertex_mm"]], "ko", label="landmark-only")
+    for name, c in report["curves"].items():
+        ax.plot(c["seconds"], c["vertex_mm"], marker=".", label=name)
+    ax.set_xlabel("seconds per image (landmark fit + refinement steps)")
+    ax.set_ylabel("vertex error (mm)")
+    ax.set_title(f"{report['faces']} held-out faces, {report['steps']} steps")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -116,7 +170,9 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=60)
     p.add_argument("--image-size", type=int, default=256)
     p.add_argument("--generator", help="GAR generator.pt (default: the gar renderer's weights)")
-    p.add_argument("--generator-n0", help="generator.pt of the lambda_n = 0 run")
+    p.add_argument("--generator-n0", default="auto",
+                   help="generator.pt of the lambda_n = 0 run (default: the committed one)")
+    p.add_argument("--plot", help="PNG of vertex error against seconds per variant")
     p.add_argument("--inverter", default="auto", help="inverter.pt (default: committed/runs)")
     p.add_argument("--landmark-noise", type=float, default=1.0, help="px")
     p.add_argument("--threads", type=int)
@@ -138,6 +194,8 @@ def main(argv=None) -> int:
 
         with atomic_path(out) as tmp:
             Path(tmp).write_text(json.dumps(report, indent=2))
+        if args.plot:
+            plot_curves(report, args.plot)
     except MorphableError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

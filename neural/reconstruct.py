@@ -188,7 +188,8 @@ def _render_geometry(model, alpha, beta, camera, renderer, appearance, supersamp
 
 def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0,
            weights: dict | None = None, inverter="auto", features=None, resolution: int = 64,
-           renderer_options: dict | None = None, seed: int = 0, return_state: bool = False):
+           renderer_options: dict | None = None, seed: int = 0, return_state: bool = False,
+           trace_every: int = 0):
     """Refine a landmark fit by photometric inversion of a renderer.
 
     Parameters
@@ -204,6 +205,8 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
     resolution : crop size for renderers of any resolution (classical)
     renderer_options : keyword options of ``get_renderer``
     return_state : also return a :class:`Refinement`
+    trace_every : when > 0, the report's ``trace`` lists ``{"step", "seconds", "alpha",
+        "beta"}`` every ``trace_every`` steps and at the end (error against run time)
 
     Returns
     -------
@@ -318,8 +321,16 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
         total = sum(lam[k] * v for k, v in terms.items())
         return total, terms, img
 
-    history, photo_hist = [], []
-    for _ in range(int(steps)):
+    history, photo_hist, trace = [], [], []
+
+    def record(step):
+        trace.append({"step": step, "seconds": round(time.perf_counter() - t0, 4),
+                      "alpha": alpha.detach().double().tolist(),
+                      "beta": beta.detach().double().tolist()})
+
+    for step in range(int(steps)):
+        if trace_every > 0 and step % trace_every == 0:
+            record(step)
         total, terms, _ = losses()
         if not torch.isfinite(total):
             raise FitError("refine: the loss became NaN or inf; try fewer steps or smaller weights")
@@ -342,6 +353,8 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
                       torch.as_tensor(Rt), torch.as_tensor(tt)).numpy()
     photo_hist.append(float(terms["photo"]))
     history.append(float(total))
+    if trace_every > 0:
+        record(int(steps))
     # back to the original image: same rotation, translation offset in the image camera
     img_cam = dataclasses.replace(fit.cameras[frame], rotation=Rt, translation=tt)
     lm_err = np.linalg.norm((uv + 0.5) / scale - 0.5 + np.array(crop[:2]) - lm_in[use], axis=1)
@@ -364,6 +377,8 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
               "loss_weights": lam, "photometric_loss": photo_hist, "loss": history,
               "landmark_rmse_px_before": before, "landmark_rmse_px_after": float(rmse[frame]),
               "runtime_s": round(time.perf_counter() - t0, 3)}
+    if trace_every > 0:
+        report["trace"] = trace
     if not return_state:
         return new_fit, report
     rendered = img[0].permute(1, 2, 0).numpy()

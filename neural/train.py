@@ -11,7 +11,7 @@ steps, at the end, and on Ctrl-C) holds the networks, optimiser states and step,
 killed at any moment and restarted with the same command continues from its last
 checkpoint and ends with the same weights as an uninterrupted run.
 
-Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (G_ema weights and config),
+Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (config, G_ema and D weights),
 ``samples/step-XXXXXX.png`` (rows: a normal map then ``G`` under fixed latents),
 ``log.jsonl`` (one JSON line per step: losses, seconds).
 """
@@ -134,14 +134,19 @@ class Trainer:
                 "D": self.D.state_dict(), "G_ema": self.G_ema.state_dict(),
                 "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict()}
 
+    def weights(self) -> dict:
+        """What ``generator.pt`` holds: the config, the step, G_ema (with its mapping network
+        M) as ``"G"`` and the discriminator ``"D"`` (to fine-tune or continue adversarially)."""
+        return {"config": self.config.to_dict(), "step": self.step,
+                "G": self.G_ema.state_dict(), "D": self.D.state_dict()}
+
     def save(self) -> Path:
         from morphable.io.atomic import atomic_path
 
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(self.state_dict(), tmp)
         with atomic_path(self.out / "generator.pt") as tmp:
-            torch.save({"config": self.config.to_dict(), "step": self.step,
-                        "G": self.G_ema.state_dict()}, tmp)
+            torch.save(self.weights(), tmp)
         return self.checkpoint_path
 
     def load(self, path=None) -> int:

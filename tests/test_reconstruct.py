@@ -125,7 +125,7 @@ def test_cli_fit_refine_and_edit(data_dir, tmp_path, capsys):
 
 
 def test_ablation_smoke(tmp_path):
-    from neural.ablate import held_out_faces, run_ablation
+    from neural.ablate import held_out_faces, plot_curves, run_ablation
 
     torch.manual_seed(0)
     G = Generator(get_config("tiny"))
@@ -134,12 +134,19 @@ def test_ablation_smoke(tmp_path):
     model, faces = held_out_faces(1, image_size=96)
     rep = run_ablation(faces, model, steps=2, generator=path, generator_n0=path, inverter=None,
                        progress=False)
-    assert set(rep["variants"]) == {"landmark_only", "classical", "gar_full", "gar_no_inverter",
-                                    "gar_lambda_n0"}
+    assert set(rep["variants"]) == {"landmark-only", "classical", "gar", "gar-no-initial",
+                                    "gar-no-norm-cycle"}
     for v in rep["variants"].values():
         assert set(v) == {"vertex_mm", "normal_deg", "s_per_image"}
         assert all(np.isfinite(x) for x in v.values())
-    assert 0 < rep["variants"]["landmark_only"]["vertex_mm"] < 10
+    assert 0 < rep["variants"]["landmark-only"]["vertex_mm"] < 10
+    # error against steps: the first traced point is the landmark fit, the last the result
+    c = rep["curves"]["classical"]
+    assert c["step"] == [0, 1, 2] and len(c["vertex_mm"]) == 3 and c["seconds"] == sorted(c["seconds"])
+    assert c["vertex_mm"][0] == pytest.approx(rep["variants"]["landmark-only"]["vertex_mm"], abs=1e-3)
+    assert c["vertex_mm"][-1] == pytest.approx(rep["variants"]["classical"]["vertex_mm"], abs=1e-3)
+    plot_curves(rep, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 1000
 
 
 def test_corrupt_weight_files_give_one_line_errors(tmp_path):
