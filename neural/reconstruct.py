@@ -39,8 +39,8 @@ import torch
 from morphable.camera import Camera, matrix_to_axis_angle
 from morphable.errors import FitError, InputError
 
-__all__ = ["face_crop", "crop_camera", "crop_image", "refine", "edit", "Refinement",
-           "DEFAULT_WEIGHTS", "default_inverter_path"]
+__all__ = ["face_crop", "crop_camera", "crop_image", "refine", "refine_frames", "edit",
+           "Refinement", "DEFAULT_WEIGHTS", "default_inverter_path"]
 
 DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1e-2, "alpha": 1e-4,
                    "beta": 1e-4}
@@ -385,6 +385,38 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
     crop_cam = dataclasses.replace(cam, rotation=Rt, translation=tt)
     app = {k: (v.detach() if torch.is_tensor(v) else [e.detach() for e in v]) for k, v in app.items()}
     return new_fit, report, Refinement(renderer, app, crop, crop_cam, target, rendered, new_fit)
+
+
+def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
+                  n_iterations: int = 4, **options) -> tuple[np.ndarray, list]:
+    """Reconstruct each frame of a video on its own: landmark fit, then :func:`refine`.
+
+    Parameters
+    ----------
+    model : MorphableModel
+    images : (N, H, W, 3) float [0, 1] or uint8, one image per frame
+    landmarks : (N, 68, 2) px, NaN where missing
+    renderer, steps, options : as :func:`refine` (the renderer is loaded once)
+    n_iterations : of the landmark fit
+
+    Returns
+    -------
+    vertices (N, V, 3) mm in the model frame, and the N refinement reports.
+    """
+    from morphable.fitting import fit_landmarks
+    from morphable.renderers import get_renderer
+
+    if isinstance(renderer, str):
+        renderer = get_renderer(renderer, **(options.pop("renderer_options", None) or {}))
+    out, reports = [], []
+    for image, lm in zip(images, landmarks):
+        H, W = np.asarray(image).shape[:2]
+        fit = fit_landmarks(model, np.asarray(lm, dtype=np.float64)[None], [[W, H]],
+                            n_iterations=n_iterations)
+        res, rep = refine(image, fit, renderer, steps=steps, **options)
+        out.append(res.vertices(0))
+        reports.append(rep)
+    return np.stack(out), reports
 
 
 def edit(state: Refinement, *, yaw=None, pitch=None, roll=None, expression: dict | None = None,

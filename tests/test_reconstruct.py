@@ -160,3 +160,18 @@ def test_corrupt_weight_files_give_one_line_errors(tmp_path):
         with pytest.raises(InputError, match=text) as e:
             load(bad)
         assert str(e.value).startswith(str(bad)) and "\n" not in str(e.value)
+
+
+def test_refine_frames_one_mesh_per_frame(tmp_path):
+    from neural.ablate import held_out_faces
+    from neural.reconstruct import refine_frames
+
+    model, faces = held_out_faces(2, image_size=96)
+    images = np.stack([f["image"] for f in faces])
+    lms = np.stack([f["landmarks"] for f in faces])
+    verts, reports = refine_frames(model, images, lms, "classical", steps=2)
+    assert verts.shape == (2, model.n_vertices, 3) and np.isfinite(verts).all()
+    assert len(reports) == 2 and all(len(r["photometric_loss"]) == 3 for r in reports)
+    # each frame's mesh is near its own face, not the other one
+    d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
+    assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
