@@ -1,8 +1,8 @@
 """Quality report of a trained GAR: ``python -m neural.evaluate --report gar.json``.
 
 On held-out synthetic faces (seeds never used in training) it measures, for each renderer
-(the GAR, optionally the GAR trained with lambda_n = 0, and the classical Lambertian renderer
-— the synthetic renders themselves):
+(``gar``; ``gar_no_norm_cycle``, the GAR trained with lambda_n = 0; ``classical``, the
+Lambertian renderer — the synthetic renders themselves):
 
 - ``normal_consistency_deg``: mean angle between the input normal map and ``N(image)`` over
   pixels that are face in both the input and ``P(image)``;
@@ -11,10 +11,16 @@ On held-out synthetic faces (seeds never used in training) it measures, for each
 - ``identity_consistency_cos``: mean cosine of ``R`` embeddings of one identity in two
   poses/expressions (same latent);
 - ``fid_aux``: Frechet distance between ``R``-embedding statistics of the renderer's images
-  and of held-out synthetic renders (for the classical renderer: two disjoint sets).
+  and of held-out synthetic renders (for the classical renderer: two disjoint sets) — **not**
+  the Inception FID of the literature, which needs weights that cannot be downloaded here;
+- ``fid_inception`` with ``--inception FILE``: the same distance in the 2048-d pool features
+  of a user-supplied Inception-v3 TorchScript file (e.g. the ``pt_inception-2015-12-05``
+  network that clean-fid and torch-fidelity download), images resized to 299 px.
 
-and writes a Figure-3-like grid (one normal map, 8 latents). The numbers are only as good
-as the aux networks; their own validation metrics are copied into the report.
+The JSON is metric-major: ``{"normal_consistency_deg": {"gar", "gar_no_norm_cycle",
+"classical"}, "landmark_consistency_px": {...}, ...}``. Also a Figure-3-like grid (one normal
+map, 8 latents). The numbers are only as good as the aux networks; their own validation
+metrics are copied into the report.
 """
 from __future__ import annotations
 
@@ -34,7 +40,11 @@ from .config import GARConfig
 from .gar import Generator
 
 __all__ = ["load_generator", "normal_consistency", "landmark_consistency",
-           "identity_consistency", "frechet_distance", "evaluate", "main"]
+           "identity_consistency", "frechet_distance", "load_inception", "inception_features",
+           "evaluate", "main"]
+
+METRICS = ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
+           "fid_aux", "fid_inception")
 
 
 def load_generator(path, ema: bool = True) -> Generator:
@@ -94,6 +104,40 @@ def frechet_distance(feats_a, feats_b) -> float:
     return float(mu @ mu + np.trace(sa + sb - 2 * root.real))
 
 
+def load_inception(path):
+    """A user-supplied Inception feature network: a TorchScript file whose output, or whose
+    first output, is (B, D) or (B, D, 1, 1) features for (B, 3, 299, 299) images."""
+    from morphable.errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: Inception weights not found")
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)   # torch.jit's deprecation notice
+            return torch.jit.load(str(path), map_location="cpu").eval()
+    except Exception:
+        raise InputError(f"{path}: not a TorchScript Inception network") from None
+
+
+@torch.no_grad()
+def inception_features(net, images, batch_size: int = 16) -> np.ndarray:
+    """(N, 3, R, R) images in [-1, 1] -> (N, D) features of ``net`` at 299 px.
+
+    clean-fid's and torch-fidelity's TorchScript Inception take uint8-range [0, 255] input
+    and resize themselves; we hand them 299 px images in that range."""
+    out = []
+    for chunk in images.split(batch_size):
+        x = torch.nn.functional.interpolate((chunk.clamp(-1, 1) + 1) * 127.5, size=(299, 299),
+                                           mode="bilinear", align_corners=False)
+        f = net(x)
+        f = f[0] if isinstance(f, (tuple, list)) else f
+        out.append(f.reshape(len(chunk), -1))
+    return torch.cat(out).numpy()
+
+
 def _grid(G, normals, path, n_latents=8, seed=0):
     from .train import normal_to_rgb, save_grid
 
@@ -106,9 +150,11 @@ def _grid(G, normals, path, n_latents=8, seed=0):
 
 @torch.no_grad()
 def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8, seed=12345,
-             grid=None, batch_size: int = 16) -> dict:
+             grid=None, batch_size: int = 16, inception=None) -> dict:
     """Metrics of each generator in ``generators`` (name -> Generator) and of the classical
-    Lambertian renders on ``n_faces`` held-out synthetic faces (pairs)."""
+    Lambertian renders (``"classical"``) on ``n_faces`` held-out synthetic faces (pairs):
+    ``{metric: {renderer: value}}`` for the metrics of :data:`METRICS`; ``inception`` (a
+    feature network, see :func:`load_inception`) adds ``fid_inception``."""
     from .data import SyntheticFaces
 
     cfg = next(iter(generators.values())).config
@@ -121,11 +167,14 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
     cat = lambda k: torch.cat([b[k] for b in batches])  # noqa: E731
     normals, normals_b, images, images_b = cat("normals"), cat("normals_b"), cat("image"), cat("image_b")
     emb = lambda x: torch.cat([aux["R"](c) for c in x.split(batch_size)]).numpy()  # noqa: E731
-    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": cfg.resolution,
-              "classical_lambertian": {
-                  "normal_consistency_deg": normal_consistency(images, normals, aux),
-                  "identity_consistency_cos": identity_consistency(images, images_b, aux),
-                  "fid_aux": frechet_distance(emb(images), emb(real))}}
+    per = {"classical": {
+        "normal_consistency_deg": normal_consistency(images, normals, aux),
+        "identity_consistency_cos": identity_consistency(images, images_b, aux),
+        "fid_aux": frechet_distance(emb(images), emb(real))}}
+    if inception is not None:
+        real_feats = inception_features(inception, real, batch_size)
+        per["classical"]["fid_inception"] = frechet_distance(
+            inception_features(inception, images, batch_size), real_feats)
     for name, G in generators.items():
         # the same latents and noise for every generator: differences come from the weights
         gen = torch.Generator().manual_seed(seed)
@@ -140,23 +189,44 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
         k_faces = min(n_faces, batch_size)
         zs = torch.randn(n_latents, k_faces, cfg.z_dim, generator=gen)
         per_latent = torch.stack([run(normals[:k_faces], zk) for zk in zs])
-        report[name] = {
+        per[name] = {
             "normal_consistency_deg": normal_consistency(fake, normals, aux),
             "landmark_consistency_px": landmark_consistency(per_latent, aux, index),
             "identity_consistency_cos": identity_consistency(fake, fake_b, aux),
             "fid_aux": frechet_distance(emb(fake), emb(real)),
         }
+        if inception is not None:
+            per[name]["fid_inception"] = frechet_distance(
+                inception_features(inception, fake, batch_size), real_feats)
+    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": cfg.resolution}
+    for metric in METRICS:
+        values = {r: m[metric] for r, m in per.items() if metric in m}
+        if values:
+            report[metric] = values
     if grid is not None:
         _grid(next(iter(generators.values())), normals[0], grid, n_latents)
         report["grid"] = str(grid)
     return report
 
 
+def _stored_metrics(path):
+    """The validation metrics a checkpoint of ours stores; None for other files."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)["meta"]["metrics"]
+    except Exception:
+        return None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m neural.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("--report", required=True, help="output JSON")
     p.add_argument("--generator", default=str(Path(__file__).parent / "weights" / "gar_tiny.pt"))
-    p.add_argument("--ablation", help="generator trained with lambda_n = 0 (reported as gar_lambda_n0)")
+    p.add_argument("--ablation", default="auto",
+                   help="generator trained with lambda_n = 0, reported as gar_no_norm_cycle "
+                        "(default: the committed weights/gar_tiny_no_norm_cycle.pt if present; "
+                        "'none' to leave it out)")
+    p.add_argument("--inception", help="TorchScript Inception-v3 features (clean-fid's / "
+                                       "torch-fidelity's file) for fid_inception")
     p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/weights)")
     p.add_argument("--grid", help="Figure-3-like PNG (default: beside the report)")
     p.add_argument("--raw", action="store_true",
@@ -166,16 +236,24 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     try:
         gens = {"gar": load_generator(args.generator, not args.raw)}
-        if args.ablation:
-            gens["gar_lambda_n0"] = load_generator(args.ablation, not args.raw)
+        ablation = args.ablation
+        if ablation == "auto":
+            from .ablate import default_no_norm_cycle_path
+
+            ablation = default_no_norm_cycle_path()
+        if ablation and str(ablation) != "none":
+            gens["gar_no_norm_cycle"] = load_generator(ablation, not args.raw)
+        inception = load_inception(args.inception) if args.inception else None
         aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
                            resolution=gens["gar"].config.resolution) for n in NAMES}
         out = Path(args.report)
         grid = Path(args.grid) if args.grid else out.with_suffix(".png")
-        report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid)
-        meta_path = Path(args.aux_dir or Path(__file__).parent / "weights") / "aux_N.pt"
-        if meta_path.is_file():
-            report["aux_validation"] = torch.load(meta_path, weights_only=True).get("meta", {})
+        report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
+                          inception=inception)
+        aux_dir = Path(args.aux_dir or Path(__file__).parent / "weights")
+        report["aux_validation"] = {n: _stored_metrics(aux_dir / f"aux_{n}.pt") for n in NAMES}
+        report["generators"] = {"gar": str(args.generator),
+                                "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None}
         from morphable.io.atomic import atomic_path
 
         with atomic_path(out) as tmp:

@@ -77,17 +77,23 @@ def test_report_end_to_end(tmp_path, data_dir):
     torch.save({"config": cfg.to_dict(), "step": 0, "G": G.state_dict()}, tmp_path / "g.pt")
     for name, cls in NETS.items():
         save_aux(cls(width=4), name, tmp_path / f"aux_{name}.pt", width=4)
+    # a stand-in for a user's Inception TorchScript file: (B, 3, 299, 299) -> (B, 8, 1, 1)
+    incep = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 5, stride=4), torch.nn.AdaptiveAvgPool2d(1))
+    torch.jit.script(incep).save(str(tmp_path / "inception.ts"))
     report = tmp_path / "gar.json"
     assert main(["--report", str(report), "--generator", str(tmp_path / "g.pt"),
                  "--ablation", str(tmp_path / "g.pt"), "--aux-dir", str(tmp_path),
-                 "--faces", "4"]) == 0
+                 "--faces", "4", "--inception", str(tmp_path / "inception.ts")]) == 0
     r = json.loads(report.read_text())
-    assert set(r) >= {"gar", "gar_lambda_n0", "classical_lambertian", "grid"}
-    for key in ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
-                "fid_aux"):
-        assert np.isfinite(r["gar"][key])
-    assert r["gar"] == r["gar_lambda_n0"]           # same weights, same seeds
+    for key in ("normal_consistency_deg", "identity_consistency_cos", "fid_aux", "fid_inception"):
+        assert set(r[key]) == {"gar", "gar_no_norm_cycle", "classical"}
+        assert all(np.isfinite(v) for v in r[key].values())
+    assert set(r["landmark_consistency_px"]) == {"gar", "gar_no_norm_cycle"}
+    for key in ("normal_consistency_deg", "fid_aux", "fid_inception"):  # same weights and seeds
+        assert r[key]["gar"] == r[key]["gar_no_norm_cycle"] != r[key]["classical"]
     assert (tmp_path / "gar.png").is_file()
+    assert main(["--report", str(report), "--generator", str(tmp_path / "g.pt"),
+                 "--inception", str(tmp_path / "g.pt")]) == 2
     assert main(["--report", str(report), "--generator", str(tmp_path / "none.pt")]) == 2
 
 
