@@ -1,4 +1,5 @@
-"""Errors that reach users as one line (the CLI prints ``str(err)`` and exits non-zero)."""
+"""Errors that reach users as one line (the CLI and the ``python -m`` scripts print
+``str(err)`` and exit non-zero)."""
 
 
 class MorphableError(Exception):
@@ -19,3 +20,35 @@ class InputError(MorphableError, ValueError):
 
 class FitError(MorphableError, RuntimeError):
     """A fit cannot be made from the given data (too few or degenerate landmarks...)."""
+
+
+def one_line_errors(prog: str):
+    """Decorator for the ``main(argv=None) -> int`` of a ``python -m`` script: a
+    :class:`MorphableError` reaches the user as the one line ``prog: error: message`` on
+    stderr and exit status 2, never as a traceback.
+
+    Examples
+    --------
+    >>> @one_line_errors("python -m demo")
+    ... def main(argv=None):
+    ...     raise InputError("in.obj: empty mesh")
+    >>> import contextlib, io
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     code = main([])
+    >>> code, err.getvalue()
+    (2, 'python -m demo: error: in.obj: empty mesh\\n')
+    """
+    import functools
+    import sys
+
+    def wrap(main):
+        @functools.wraps(main)
+        def run(argv=None):
+            try:
+                return main(argv)
+            except MorphableError as e:
+                print(f"{prog}: error: {e}", file=sys.stderr)
+                return 2
+        return run
+    return wrap

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from morphable.errors import InputError, one_line_errors
+
 __all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves",
            "default_no_norm_cycle_path", "main"]
 
@@ -76,7 +78,6 @@ def _vertex_error(model, alpha, beta, true_vertices) -> float:
 
 def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto", inverter="auto",
                  landmark_noise=1.0, seed=0, progress=True) -> dict:
-    from morphable.errors import InputError
     from morphable.fitting import fit_landmarks
 
     from .reconstruct import default_inverter_path, refine
@@ -161,9 +162,8 @@ def plot_curves(report: dict, path) -> None:
     plt.close(fig)
 
 
+@one_line_errors("neural.ablate")
 def main(argv=None) -> int:
-    from morphable.errors import MorphableError
-
     p = argparse.ArgumentParser(prog="python -m neural.ablate", description=__doc__.splitlines()[0])
     p.add_argument("--report", required=True, help="output JSON")
     p.add_argument("--faces", type=int, default=8)
@@ -177,28 +177,24 @@ def main(argv=None) -> int:
     p.add_argument("--landmark-noise", type=float, default=1.0, help="px")
     p.add_argument("--threads", type=int)
     args = p.parse_args(argv)
-    try:
-        out = Path(args.report)
-        if not out.resolve().parent.is_dir():
-            raise MorphableError(f"{out}: folder {out.resolve().parent} does not exist")
-        if args.threads:
-            import torch
+    out = Path(args.report)
+    if not out.resolve().parent.is_dir():
+        raise InputError(f"{out}: folder {out.resolve().parent} does not exist")
+    if args.threads:
+        import torch
 
-            torch.set_num_threads(args.threads)
-        model, faces = held_out_faces(args.faces, args.image_size)
-        report = run_ablation(faces, model, steps=args.steps, generator=args.generator,
-                              generator_n0=args.generator_n0, inverter=args.inverter,
-                              landmark_noise=args.landmark_noise)
-        report["command"] = "python -m neural.ablate " + " ".join(argv if argv is not None else sys.argv[1:])
-        from morphable.io.atomic import atomic_path
+        torch.set_num_threads(args.threads)
+    model, faces = held_out_faces(args.faces, args.image_size)
+    report = run_ablation(faces, model, steps=args.steps, generator=args.generator,
+                          generator_n0=args.generator_n0, inverter=args.inverter,
+                          landmark_noise=args.landmark_noise)
+    report["command"] = "python -m neural.ablate " + " ".join(argv if argv is not None else sys.argv[1:])
+    from morphable.io.atomic import atomic_path
 
-        with atomic_path(out) as tmp:
-            Path(tmp).write_text(json.dumps(report, indent=2))
-        if args.plot:
-            plot_curves(report, args.plot)
-    except MorphableError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    with atomic_path(out) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=2))
+    if args.plot:
+        plot_curves(report, args.plot)
     print(json.dumps(report["variants"], indent=1))
     return 0
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from morphable.errors import MorphableError
+from morphable.errors import MorphableError, one_line_errors
 
 from .auxnets import NAMES, load_aux
 from .checkpoint import load_network
@@ -217,6 +217,7 @@ def _stored_metrics(path):
         return None
 
 
+@one_line_errors("neural.evaluate")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m neural.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("--report", required=True, help="output JSON")
@@ -234,35 +235,31 @@ def main(argv=None) -> int:
     p.add_argument("--faces", type=int, default=64)
     p.add_argument("--seed", type=int, default=12345)
     args = p.parse_args(argv)
-    try:
-        gens = {"gar": load_generator(args.generator, not args.raw)}
-        ablation = args.ablation
-        if ablation == "auto":
-            from .ablate import default_no_norm_cycle_path
+    gens = {"gar": load_generator(args.generator, not args.raw)}
+    ablation = args.ablation
+    if ablation == "auto":
+        from .ablate import default_no_norm_cycle_path
 
-            ablation = default_no_norm_cycle_path()
-        if ablation and str(ablation) != "none":
-            gens["gar_no_norm_cycle"] = load_generator(ablation, not args.raw)
-        inception = load_inception(args.inception) if args.inception else None
-        aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
-                           resolution=gens["gar"].config.resolution) for n in NAMES}
-        out = Path(args.report)
-        grid = Path(args.grid) if args.grid else out.with_suffix(".png")
-        report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
-                          inception=inception)
-        aux_dir = Path(args.aux_dir or Path(__file__).parent / "weights")
-        report["aux_validation"] = {n: _stored_metrics(aux_dir / f"aux_{n}.pt") for n in NAMES}
-        report["generators"] = {"gar": str(args.generator),
-                                "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None}
-        from morphable.io.atomic import atomic_path
+        ablation = default_no_norm_cycle_path()
+    if ablation and str(ablation) != "none":
+        gens["gar_no_norm_cycle"] = load_generator(ablation, not args.raw)
+    inception = load_inception(args.inception) if args.inception else None
+    aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
+                       resolution=gens["gar"].config.resolution) for n in NAMES}
+    out = Path(args.report)
+    grid = Path(args.grid) if args.grid else out.with_suffix(".png")
+    report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
+                      inception=inception)
+    aux_dir = Path(args.aux_dir or Path(__file__).parent / "weights")
+    report["aux_validation"] = {n: _stored_metrics(aux_dir / f"aux_{n}.pt") for n in NAMES}
+    report["generators"] = {"gar": str(args.generator),
+                            "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None}
+    from morphable.io.atomic import atomic_path
 
-        with atomic_path(out) as tmp:
-            tmp.write_text(json.dumps(report, indent=1) + "\n")
-        print(json.dumps(report, indent=1))
-        return 0
-    except MorphableError as e:
-        print(f"neural.evaluate: error: {e}", file=sys.stderr)
-        return 2
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(report, indent=1) + "\n")
+    print(json.dumps(report, indent=1))
+    return 0
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from morphable.camera import Camera, matrix_to_axis_angle
+from morphable.camera import Camera
 from morphable.errors import FitError, InputError
 
 __all__ = ["face_crop", "crop_camera", "crop_image", "refine", "refine_frames", "edit",
@@ -289,7 +289,7 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
             app["albedo"] = I[0][:, face].mean(1)[None].clamp(0.02, 1)
         app["sh"] = torch.zeros(1, 9, 3)
         app["sh"][:, 0] = 1.0
-    app_params, groups = [], []
+    groups = []
     for k, v in app.items():
         ts = v if isinstance(v, list) else [v]
         for tsr in ts:

@@ -21,12 +21,10 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from morphable.errors import MorphableError
+from morphable.errors import one_line_errors
 
-from .config import get_config
 from .inverter import Inverter, inverter_loss, save_inverter
 
 __all__ = ["normal_pool", "train", "evaluate_inverter", "main"]
@@ -111,31 +109,28 @@ def build_parser():
     return p
 
 
+@one_line_errors("neural.train_inverter")
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
-    try:
-        if args.threads:
-            torch.set_num_threads(args.threads)
-        from .renderer import GARRenderer
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    from .renderer import GARRenderer
 
-        r = GARRenderer(weights=args.generator) if args.generator else GARRenderer()
-        G = r.generator
-        if G.config.name != args.config and not args.generator:
-            log.warning("generator config %s differs from --config %s", G.config.name, args.config)
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        V, metrics, history = train(G, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                                    pool=args.pool, held_out=args.held_out, seed=args.seed,
-                                    max_minutes=args.max_minutes)
-        metrics["generator"] = r.weights
-        save_inverter(V, out / "inverter.pt", metrics=metrics)
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        with open(out / "log.jsonl", "w") as f:
-            f.writelines(json.dumps(h) + "\n" for h in history)
-    except MorphableError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    r = GARRenderer(weights=args.generator) if args.generator else GARRenderer()
+    G = r.generator
+    if G.config.name != args.config and not args.generator:
+        log.warning("generator config %s differs from --config %s", G.config.name, args.config)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    V, metrics, history = train(G, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                                pool=args.pool, held_out=args.held_out, seed=args.seed,
+                                max_minutes=args.max_minutes)
+    metrics["generator"] = r.weights
+    save_inverter(V, out / "inverter.pt", metrics=metrics)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    with open(out / "log.jsonl", "w") as f:
+        f.writelines(json.dumps(h) + "\n" for h in history)
     print(json.dumps(metrics))
     return 0
 

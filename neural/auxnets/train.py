@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from morphable.errors import MorphableError
+from morphable.errors import MorphableError, one_line_errors
 
 from . import NAMES, build_aux, save_aux
 
@@ -137,6 +137,7 @@ class AuxTrainer:
                          metrics=(metrics or {}).get(n, {}), **meta) for n in self.names]
 
 
+@one_line_errors("neural.auxnets.train")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m neural.auxnets.train", description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, help="folder for aux_N.pt, aux_P.pt, aux_L.pt, aux_R.pt")
@@ -157,29 +158,25 @@ def main(argv=None) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    try:
-        unknown = set(args.nets) - set(NAMES)
-        if unknown or not args.nets:
-            raise MorphableError(f"--nets: choose letters from {''.join(NAMES)}, got {args.nets!r}")
-        t = AuxTrainer(args.resolution, args.width, args.identities, args.batch_size,
-                       seed=args.seed, nets=tuple(dict.fromkeys(args.nets)))
-        t0 = time.time()
-        with tqdm(total=args.steps, disable=args.quiet, unit="step") as bar:
-            while t.step < args.steps:
-                terms = t.train_step()
-                bar.update(1)
-                bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()})
-                if t.step % args.save_every == 0 and t.step < args.steps:
-                    t.save(args.out)
-        metrics = t.validate()
-        for m in metrics.values():
-            m["train_seconds"] = round(time.time() - t0, 1)
-        t.save(args.out, metrics)
-        print(json.dumps(metrics, indent=1))
-        return 0
-    except MorphableError as e:
-        print(f"neural.auxnets.train: error: {e}", file=sys.stderr)
-        return 2
+    unknown = set(args.nets) - set(NAMES)
+    if unknown or not args.nets:
+        raise MorphableError(f"--nets: choose letters from {''.join(NAMES)}, got {args.nets!r}")
+    t = AuxTrainer(args.resolution, args.width, args.identities, args.batch_size,
+                   seed=args.seed, nets=tuple(dict.fromkeys(args.nets)))
+    t0 = time.time()
+    with tqdm(total=args.steps, disable=args.quiet, unit="step") as bar:
+        while t.step < args.steps:
+            terms = t.train_step()
+            bar.update(1)
+            bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()})
+            if t.step % args.save_every == 0 and t.step < args.steps:
+                t.save(args.out)
+    metrics = t.validate()
+    for m in metrics.values():
+        m["train_seconds"] = round(time.time() - t0, 1)
+    t.save(args.out, metrics)
+    print(json.dumps(metrics, indent=1))
+    return 0
 
 
 if __name__ == "__main__":
