@@ -42,7 +42,7 @@ from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 from .scans import UNITS, Scan, load_scan, model_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
-__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
+__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol", "video_frames",
            "run_model_scans", "format_table", "save_heatmap", "main"]
 
 MIN_LANDMARKS = 10
@@ -105,7 +105,7 @@ def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruc
 
 
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
-                peers: dict | None = None) -> Reconstruction:
+                peers: dict | None = None, images=None) -> Reconstruction:
     """Reconstruct one face from the landmarks of several frames.
 
     Parameters
@@ -115,8 +115,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     landmarks : (N, 68, 2) px, NaN where missing
     image_size : (W, H) px
     effort : method settings: ``n_iterations``/``n_identity`` for ours, ``num_iterations``
-        for eos
+        for eos, ``steps`` (refinement steps, default 100) for gar
     peers : cache of loaded peer fitters (reused between calls)
+    images : (N, H, W, 3) the frames themselves (gar: a per-frame landmark fit refined by
+        inverting the GAR, :func:`neural.reconstruct.refine_frames`, then averaged)
 
     Returns
     -------
@@ -129,7 +131,8 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     if lm.ndim != 3 or lm.shape[1:] != (68, 2):
         raise InputError(f"{method}: expected (N, 68, 2) landmarks, got {lm.shape}")
     # a frame with (almost) no landmarks is a detector failure: the video goes on without it
-    lm = lm[np.isfinite(lm).all(-1).sum(-1) >= MIN_LANDMARKS]
+    usable = np.isfinite(lm).all(-1).sum(-1) >= MIN_LANDMARKS
+    lm = lm[usable]
     if len(lm) == 0:
         raise FitError(f"{method}: no frame has {MIN_LANDMARKS} landmarks")
     if method == "mean-face":
@@ -160,8 +163,21 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         dt = time.perf_counter() - t
         return _reconstruction(sfm, v, dt, len(lm))
     if method == "gar":
-        raise InputError("method gar: the neural plugin's reconstruction is not wired into the "
-                         "protocol yet")
+        if images is None:
+            raise InputError("method gar: needs the video frames (synthetic videos render them)")
+        try:
+            from neural.reconstruct import refine_frames
+        except ImportError as e:
+            raise InputError(f"method gar: the neural plugin is not installed ({e}); "
+                             "pip install -e '.[neural]'") from None
+        t = time.perf_counter()
+        verts, reports = refine_frames(model, np.asarray(images)[usable], lm, "gar",
+                                       steps=int(effort.get("steps", 100)))
+        dt = time.perf_counter() - t
+        return _reconstruction(model, verts.mean(0), dt, len(lm), {
+            "photometric_loss_first_last": [[r["photometric_loss"][0], r["photometric_loss"][-1]]
+                                            for r in reports],
+            "latent_init": reports[0]["latent_init"], "generator": reports[0]["renderer_weights"]})
     raise InputError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 
 
@@ -213,6 +229,17 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
         save_image_png(tmp, img)
 
 
+def _sampled_frame_paths(folder: Path, condition: str, k: int) -> list:
+    """The k uniformly sampled frame files of ``folder/<condition>/``."""
+    d = folder / condition
+    frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
+    if not frames:
+        raise InputError(f"{d}: no frames (.png .jpg .ppm) for condition {condition}")
+    if k > len(frames):
+        raise InputError(f"{d}: {len(frames)} frames, cannot sample {k}")
+    return [frames[i] for i in sample_frames(len(frames), k)]
+
+
 def _frames_from_folder(folder: Path, condition: str, k: int):
     """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H))."""
     from PIL import Image
@@ -220,12 +247,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int):
     from morphable.io.landmarks import read_pts
 
     d = folder / condition
-    frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
-    if not frames:
-        raise InputError(f"{d}: no frames (.png .jpg .ppm) for condition {condition}")
-    if k > len(frames):
-        raise InputError(f"{d}: {len(frames)} frames, cannot sample {k}")
-    chosen = [frames[i] for i in sample_frames(len(frames), k)]
+    chosen = _sampled_frame_paths(folder, condition, k)
     sizes = {Image.open(p).size for p in chosen}
     if len(sizes) != 1:
         raise InputError(f"{d}: frames have different sizes {sorted(sizes)}")
@@ -264,6 +286,22 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     return lm, video.image_size, desc
 
 
+def video_frames(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
+                 frames_dir=None) -> np.ndarray:
+    """The sampled frames of one video (those :func:`video_landmarks` describes) ->
+    (k, H, W, 3) float in [0, 1]: rendered from the scan, or read from ``frames_dir``."""
+    if frames_dir is not None:
+        from PIL import Image
+
+        return np.stack([np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255
+                         for p in _sampled_frame_paths(Path(frames_dir), condition, n_sampled)])
+    from .videos import render_frames
+
+    video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
+                            n_sampled=n_sampled, seed=seed)
+    return render_frames(scan, video, seed=seed)
+
+
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
                  seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
@@ -295,10 +333,12 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
         bar.set_postfix_str(f"{c} video", refresh=False)
         lm, size, desc = video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect, frames_dir)
         report["videos"][c] = desc
+        images = (video_frames(scan, model, c, n_sampled, n_frames, seed, frames_dir)
+                  if "gar" in methods else None)
         for m in methods:
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:
-                rec = reconstruct(m, model, lm, size, efforts.get(m), peers)
+                rec = reconstruct(m, model, lm, size, efforts.get(m), peers, images)
                 cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
             except FitError as e:
                 cell, cmp = {"error": str(e)}, None
