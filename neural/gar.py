@@ -84,6 +84,12 @@ class EqualConv2d(nn.Module):
         return F.conv2d(x, self.weight * self.scale, self.bias, padding=self.padding)
 
 
+def pixel_norm(z):
+    """(B, D) -> each row scaled to unit mean square: M's first operation, so G depends on
+    ``z`` only through ``pixel_norm(z)`` (its direction)."""
+    return z * torch.rsqrt(z.pow(2).mean(dim=1, keepdim=True) + 1e-8)
+
+
 class MappingNetwork(nn.Module):
     """M: z (B, z_dim) -> w (B, w_dim), ``n_layers`` leaky-ReLU MLP layers (paper: 8)."""
 
@@ -94,8 +100,7 @@ class MappingNetwork(nn.Module):
                                       for a, b in zip(dims[:-1], dims[1:])])
 
     def forward(self, z):
-        z = z * torch.rsqrt(z.pow(2).mean(dim=1, keepdim=True) + 1e-8)  # pixel norm
-        return self.layers(z)
+        return self.layers(pixel_norm(z))
 
 
 class ModulatedConv2d(nn.Module):

@@ -7,7 +7,11 @@ generator feature ``G_i(n, z)``. The per-channel mean and standard deviation of 
 ``R_i(I)`` are concatenated and an MLP as deep and wide as the mapping network M predicts
 ``z_hat``. Training loss, on ``I = G(n, z, eps)``:
 
-``L_z = ||z_hat - z||^2 + sum_i ||G_i(n, z) - R_i(I)||^2``  (means over elements).
+``L_z = ||PN(z_hat) - PN(z)||^2 + sum_i ||G_i(n, z) - R_i(I)||^2``  (means over elements),
+
+where ``PN`` is the pixel normalisation that the mapping network applies first: G sees only
+the direction of ``z``, so its length cannot be recovered from an image and the paper's
+``||z_hat - z||^2`` would spend V's capacity on it.
 
 Examples
 --------
@@ -33,7 +37,7 @@ from torch import nn
 
 from .checkpoint import load_network
 from .config import GARConfig
-from .gar import EqualConv2d, EqualLinear, lrelu
+from .gar import EqualConv2d, EqualLinear, lrelu, pixel_norm
 
 __all__ = ["Inverter", "generator_features", "inverter_loss", "load_inverter", "save_inverter"]
 
@@ -92,7 +96,7 @@ def inverter_loss(V, G, normals, z, noise="zero"):
     with torch.no_grad():
         image, g_feats = generator_features(G, normals, z, noise)
     z_hat, v_feats = V(image)
-    lz = (z_hat - z).pow(2).mean()
+    lz = (pixel_norm(z_hat) - pixel_norm(z)).pow(2).mean()
     lf = sum((g - v).pow(2).mean() for g, v in zip(g_feats, v_feats))
     return lz + lf, {"z": float(lz.detach()), "features": float(lf.detach())}
 
