@@ -214,14 +214,14 @@ def neural_renderer():
 
 `G(n, z)` renders a face image from a camera-frame normal map `n` (geometry, from the 3DMM
 through `morphable.raster.normal_map`) and a latent code `z` (appearance: skin, light,
-background). This notebook samples images, edits the geometry with the appearance fixed, and
-inverts the renderer for a latent code.
+background). This notebook samples images, edits the geometry with the appearance fixed,
+inverts the renderer for a latent code, and reconstructs and edits a real photo.
 
-**Weights.** Trained GAR weights are looked up in `$MORPHABLE_GAR_WEIGHTS`, then
-`runs/tiny/generator.pt` and `runs/gar/generator.pt` (written by
-`python -m neural.train --config tiny --out runs/tiny`). Without them the generator below is
-**untrained**: the images are then structured noise shaped by the normal maps — the cells show
-the mechanics, not the quality of a trained model."""),
+**Weights.** The generator is looked up in `$MORPHABLE_GAR_WEIGHTS`, then the committed
+`neural/weights/gar_tiny.pt` (model card: `neural/weights/MODEL_CARD.md`), then
+`runs/tiny/generator.pt` (written by `python -m neural.train --config tiny --out runs/tiny`).
+Without any, the generator below is **untrained**: the images are then structured noise shaped
+by the normal maps — the cells show the mechanics, not the quality of a trained model."""),
         new_code_cell(SETUP + '''
 
 import torch
@@ -229,11 +229,11 @@ import torch
 from neural.config import get_config
 from neural.evaluate import load_generator
 from neural.gar import Generator
+from neural.renderer import default_generator_path
 
 torch.manual_seed(0)
-# the first generator found: $MORPHABLE_GAR_WEIGHTS, then the runs of neural.train
-candidates = [os.environ.get("MORPHABLE_GAR_WEIGHTS"), REPO / "runs" / "tiny" / "generator.pt",
-              REPO / "runs" / "gar" / "generator.pt"]
+# the first generator found: $MORPHABLE_GAR_WEIGHTS or the committed weights, then a run
+candidates = [default_generator_path(), REPO / "runs" / "tiny" / "generator.pt"]
 weights = next((Path(c) for c in candidates if c and Path(c).is_file()), None)
 if weights is not None:
     G = load_generator(weights)
@@ -329,12 +329,45 @@ print(f"L1 {losses[0]:.4f} -> {losses[-1]:.4f} in {len(losses)} steps")
 show([target[0], recon[0]], 1, 2, ["target", "inverted"], size=2.2)
 assert losses[-1] < losses[0]'''),
         new_markdown_cell("""\
+## Reconstructing a photo through the GAR
+
+The paper's method on a real photo: landmark fit (α, β, θ), then `z ← V(crop)` (the committed
+inverter, when there is one), `ε ← 0`, then Adam over α, β, θ, z, ε through the fixed GAR
+(`neural.reconstruct.refine`; `morphable fit IMAGE --refine gar` on the command line). Few steps
+here to keep the notebook quick; the CLI default is 100."""),
+        new_code_cell('''\
+from PIL import Image
+
+from morphable.fitting import fit_landmarks
+from morphable.io.landmarks import read_pts
+from neural.reconstruct import edit, refine
+
+photo_path = DATA / "images" / "image_0010.png"
+photo = np.asarray(Image.open(photo_path).convert("RGB"))
+fit = fit_landmarks(model, read_pts(photo_path.with_suffix(".pts"))[None], [photo.shape[1::-1]])
+gar = None if weights is None else {"weights": str(weights)}
+refined, report, state = refine(photo, fit, "gar", steps=30, return_state=True,
+                                renderer_options=gar or {"allow_untrained": True})
+photo_loss = report["photometric_loss"]
+print(f"photometric loss {photo_loss[0]:.4f} -> {photo_loss[-1]:.4f} in {len(photo_loss)} steps, "
+      f"{report['runtime_s']:.1f} s; latent from {report['latent_init']}")
+assert np.isfinite(photo_loss).all() and photo_loss[-1] < photo_loss[0]'''),
+        new_markdown_cell("## Editing the reconstruction\n\nThe recovered face under another pose and "
+                          "expression, re-rendered with the recovered z and ε (`morphable edit`)."),
+        new_code_cell('''\
+to_t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32) * 2 - 1).permute(2, 0, 1)
+turned = edit(state, yaw=20.0)
+smiling = edit(state, expression={"happiness": 0.8})
+show([to_t(state.target), to_t(state.rendered), to_t(turned), to_t(smiling)], 1, 4,
+     ["crop", "reconstruction", "yaw 20", "happiness 0.8"], size=2.2)
+assert np.isfinite(turned).all() and np.abs(turned - state.rendered).mean() > 1e-3'''),
+        new_markdown_cell("""\
 ## Next
 
 ```
-python -m neural.auxnets.train --out neural/weights --steps 2000   # auxiliary networks N, P, L, R
-python -m neural.train --config tiny --out runs/tiny            # then rerun this notebook
+python -m neural.train --config tiny --out runs/tiny            # train your own, then rerun
 python -m neural.evaluate --report reports/gar.json --generator runs/tiny/generator.pt
+python -m neural.ablate --report ablate.json                    # the reconstruction ablations
 ```"""),
     ]
 
