@@ -13,6 +13,13 @@ where ``PN`` is the pixel normalisation that the mapping network applies first: 
 the direction of ``z``, so its length cannot be recovered from an image and the paper's
 ``||z_hat - z||^2`` would spend V's capacity on it.
 
+:meth:`Inverter.latent` is the latent to start a reconstruction from. V recovers only part of
+``z``'s direction (the mean cosine ``c`` between ``PN(z_hat)`` and ``z``, measured after
+training and stored in the network), and ``PN(z_hat)`` alone is an atypical latent (its energy
+sits in the few directions V can see), which renders worse than a random one. So the latent is
+``c PN(z_hat) + sqrt(1 - c^2) e`` with ``e ~ N(0, I)``: V's estimate where it knows, the prior
+where it does not (for unit-variance Gaussians, the regression of ``z`` on ``PN(z_hat)``).
+
 Examples
 --------
 >>> import torch
@@ -76,6 +83,8 @@ class Inverter(nn.Module):
         dims = [2 * sum(ch(r) for r in res)] + [config.w_dim] * (config.mapping_layers - 1)
         self.mlp = nn.Sequential(*[EqualLinear(a, b, activation=True) for a, b in zip(dims[:-1], dims[1:])],
                                  EqualLinear(dims[-1], config.z_dim))
+        # mean cosine of PN(z_hat) and z on renders of training normal maps (set after training)
+        self.register_buffer("direction_cosine", torch.ones(()))
 
     def forward(self, image):
         x = lrelu(self.from_rgb(image))
@@ -89,6 +98,14 @@ class Inverter(nn.Module):
         stats = [torch.cat([f.mean((2, 3)), (f.var((2, 3), unbiased=False) + 1e-8).sqrt()], 1)
                  for f in feats]
         return self.mlp(torch.cat(stats, 1)), feats
+
+    def latent(self, image, generator=None):
+        """(B, 3, R, R) in [-1, 1] -> (B, z_dim) the calibrated starting latent (see the
+        module docstring); ``generator`` seeds the prior part."""
+        z_hat, _ = self(image)
+        c = float(self.direction_cosine.clamp(0, 1))
+        prior = torch.randn(z_hat.shape, generator=generator)
+        return c * pixel_norm(z_hat) + (1 - c * c) ** 0.5 * prior
 
 
 def inverter_loss(V, G, normals, z, noise="zero"):

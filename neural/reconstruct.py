@@ -281,7 +281,7 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
             init = "inverter"
         if V is not None:
             with torch.no_grad():
-                app["z"] = V(I * 2 - 1)[0]
+                app["z"] = V.latent(I * 2 - 1, generator=torch.Generator().manual_seed(seed))
         app["noise"] = [torch.zeros_like(e) for e in app["noise"]]
     else:
         face = cover[0, 0] > 0.5

@@ -9,8 +9,11 @@ fresh latents ``z`` and noise ``eps``, renders ``I = G(n, z, eps)`` and minimise
 Outputs in ``--out``: ``inverter.pt`` (:func:`neural.inverter.save_inverter`, with the
 metrics and the generator path in its meta) and ``metrics.json``:
 ``z_mse`` = mean squared error of the pixel-normalised latents (what G sees; 0 is exact, a
-latent unrelated to z gives 2), ``z_cosine`` (mean cosine of z_hat and z), ``image_l1`` = mean |G(n, z_hat) - G(n, z)| in
-[0, 1] units next to ``image_l1_random_z`` (a random latent instead of z_hat).
+latent unrelated to z gives 2), ``z_cosine`` (mean cosine of z_hat and z), ``image_l1`` =
+mean |G(n, V.latent(I)) - G(n, z)| in [0, 1] units, ``image_l1_direction`` the same with
+``PN(z_hat)`` alone, next to ``image_l1_random_z`` (a random latent), all on held-out
+renders; and ``direction_cosine``, the calibration of :meth:`neural.inverter.Inverter.latent`,
+measured on renders of training normal maps after training (:func:`calibrate`).
 """
 from __future__ import annotations
 
@@ -25,9 +28,10 @@ import torch
 
 from morphable.errors import one_line_errors
 
+from .gar import pixel_norm
 from .inverter import Inverter, inverter_loss, save_inverter
 
-__all__ = ["normal_pool", "train", "evaluate_inverter", "main"]
+__all__ = ["normal_pool", "train", "calibrate", "evaluate_inverter", "main"]
 
 log = logging.getLogger("neural.train_inverter")
 
@@ -48,14 +52,26 @@ def evaluate_inverter(V, G, normals, seed: int = 1) -> dict:
     z_rand = torch.randn(len(normals), G.config.z_dim, generator=g)
     image = G(normals, z, noise="zero")
     z_hat, _ = V(image)
-    from .gar import pixel_norm
-
     mse = float((pixel_norm(z_hat) - pixel_norm(z)).pow(2).mean())
     cos = float(torch.nn.functional.cosine_similarity(z_hat, z, dim=1).mean())
-    l1 = float((G(normals, z_hat, noise="zero") - image).abs().mean() / 2)
-    l1_rand = float((G(normals, z_rand, noise="zero") - image).abs().mean() / 2)
-    return {"z_mse": mse, "z_cosine": cos, "image_l1": l1, "image_l1_random_z": l1_rand,
-            "n_held_out": len(normals)}
+
+    def l1(latent):
+        return float((G(normals, latent, noise="zero") - image).abs().mean() / 2)
+
+    return {"z_mse": mse, "z_cosine": cos, "image_l1": l1(V.latent(image, generator=g)),
+            "image_l1_direction": l1(pixel_norm(z_hat)), "image_l1_random_z": l1(z_rand),
+            "direction_cosine": float(V.direction_cosine), "n_held_out": len(normals)}
+
+
+@torch.no_grad()
+def calibrate(V, G, normals, seed: int = 2) -> float:
+    """Set ``V.direction_cosine`` to the mean cosine of ``PN(z_hat)`` and ``z`` on renders of
+    ``normals`` (training normal maps, fresh latents) and return it."""
+    z = torch.randn(len(normals), G.config.z_dim, generator=torch.Generator().manual_seed(seed))
+    z_hat, _ = V(G(normals, z, noise="zero"))
+    c = float(torch.nn.functional.cosine_similarity(z_hat, z, dim=1).mean())
+    V.direction_cosine.fill_(max(c, 0.0))
+    return c
 
 
 def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: int = 96,
@@ -87,6 +103,7 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
             log.info("time budget reached after %d steps", step + 1)
             break
     V.eval().requires_grad_(False)
+    calibrate(V, G, train_n[:held_out])
     metrics = evaluate_inverter(V, G, test_n)
     metrics.update(steps=len(history), seconds=round(time.perf_counter() - t0, 1))
     return V, metrics, history

@@ -12,6 +12,7 @@ from morphable.fitting import fit_landmarks  # noqa: E402
 from morphable.raster import DirectionalLight, render, sh_from_lights  # noqa: E402
 from neural.config import get_config  # noqa: E402
 from neural.gar import Generator  # noqa: E402
+from neural.gar import pixel_norm  # noqa: E402
 from neural.inverter import Inverter, inverter_loss, load_inverter, save_inverter  # noqa: E402
 from neural.reconstruct import crop_camera, crop_image, edit, face_crop, refine  # noqa: E402
 from neural.renderer import GARRenderer  # noqa: E402
@@ -97,6 +98,14 @@ def test_inverter_training_smoke(tmp_path):
     assert len(history) == 3 and all(np.isfinite(h["z"]) for h in history)
     assert {"z_mse", "z_cosine", "image_l1"} <= set(metrics)
     assert 0 <= metrics["z_mse"] < 4 and np.isfinite(metrics["z_cosine"])
+    # the starting latent: V's direction where it knows (c = 1), the prior where not (c = 0)
+    assert 0 <= metrics["direction_cosine"] <= 1 and float(V.direction_cosine) == metrics["direction_cosine"]
+    img = torch.zeros(2, 3, 16, 16)
+    V.direction_cosine.fill_(1.0)
+    torch.testing.assert_close(V.latent(img), pixel_norm(V(img)[0]))
+    V.direction_cosine.fill_(0.0)
+    torch.testing.assert_close(V.latent(img, generator=torch.Generator().manual_seed(3)),
+                               torch.randn(2, cfg.z_dim, generator=torch.Generator().manual_seed(3)))
     # G sees only the direction of z, and so does the latent term of the loss
     z = torch.randn(2, cfg.z_dim)
     torch.testing.assert_close(G.mapping(3 * z), G.mapping(z))
