@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from morphable.errors import FitError, InputError, MorphableError
+from morphable.errors import FitError, InputError, one_line_errors
 from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 
 from .scans import UNITS, Scan, load_scan, model_scan
@@ -501,82 +501,79 @@ def _write_outputs(report: dict, errors: dict, report_path: Path, errors_path: P
         tmp.write_text(json.dumps(report, indent=1))
 
 
+@one_line_errors("evaluation.florence")
 def main(argv=None) -> int:
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(levelname)s: %(message)s")
-    try:
-        report_path = Path(args.report)
-        errors_path = Path(args.errors) if args.errors else report_path.with_name(report_path.stem + "_errors.npz")
-        for p in (report_path, errors_path):
-            if not p.parent.is_dir() and str(p.parent):
-                raise InputError(f"{p}: output folder {p.parent} does not exist")
-        if args.frames < 1 or args.video_frames < args.frames:
-            raise InputError(f"--frames {args.frames}: need 1 <= frames <= --video-frames "
-                             f"({args.video_frames})")
-        from morphable import load_model
+    report_path = Path(args.report)
+    errors_path = Path(args.errors) if args.errors else report_path.with_name(report_path.stem + "_errors.npz")
+    for p in (report_path, errors_path):
+        if not p.parent.is_dir() and str(p.parent):
+            raise InputError(f"{p}: output folder {p.parent} does not exist")
+    if args.frames < 1 or args.video_frames < args.frames:
+        raise InputError(f"--frames {args.frames}: need 1 <= frames <= --video-frames "
+                         f"({args.video_frames})")
+    from morphable import load_model
 
-        if (args.synthetic_scan is None) == (args.scan is None):
-            raise InputError("give either --scan with --scan-landmarks, or --synthetic-scan")
-        if args.scan is not None and args.scan_landmarks is None:
-            raise InputError(f"--scan {args.scan}: --scan-landmarks is required")
-        model = load_model(args.model)
+    if (args.synthetic_scan is None) == (args.scan is None):
+        raise InputError("give either --scan with --scan-landmarks, or --synthetic-scan")
+    if args.scan is not None and args.scan_landmarks is None:
+        raise InputError(f"--scan {args.scan}: --scan-landmarks is required")
+    model = load_model(args.model)
+    if args.synthetic_scan:
+        scan_model = load_model(args.synthetic_scan)
+        for bad in ("detect", "frames_dir", "heatmaps"):
+            if getattr(args, bad):
+                raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
+    else:
+        scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
+    ours = {k: v for k, v in (("n_iterations", args.iterations),
+                              ("definition_std_mm", args.definition_std),
+                              ("model_std_mm", args.model_std)) if v is not None}
+    efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
+    if args.plot:
+        from morphable.plots import check_plot_path
+
+        check_plot_path(args.plot)
+    common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
+                  icp_scale=args.icp_scale, landmark_scale=not args.rigid,
+                  log=logging.getLogger("evaluation.florence").info, progress=not args.quiet)
+    with logging_redirect_tqdm():
         if args.synthetic_scan:
-            scan_model = load_model(args.synthetic_scan)
-            for bad in ("detect", "frames_dir", "heatmaps"):
-                if getattr(args, bad):
-                    raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
+            errors = {}
+            report = run_model_scans(scan_model, model, args.methods, args.conditions,
+                                     args.n_scans, args.seed, n_sampled=args.frames,
+                                     n_frames=args.video_frames, **common)
         else:
-            scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
-        ours = {k: v for k, v in (("n_iterations", args.iterations),
-                                  ("definition_std_mm", args.definition_std),
-                                  ("model_std_mm", args.model_std)) if v is not None}
-        efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
-        if args.plot:
-            from morphable.plots import check_plot_path
+            report, errors = run_protocol(scan, model, args.methods, args.conditions,
+                                          args.frames, args.video_frames, args.seed,
+                                          detect=args.detect, frames_dir=args.frames_dir,
+                                          **common)
+    cells = [cell for per in report["methods"].values() for cell in per.values()]
+    if cells and all("error" in cell for cell in cells):
+        raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")
+    report["command"] = "python -m evaluation.florence " + " ".join(
+        sys.argv[1:] if argv is None else argv)
+    if args.heatmaps and not Path(args.heatmaps).is_dir():
+        raise InputError(f"{args.heatmaps}: heat-map folder does not exist")
+    print(format_table(report))
+    _write_outputs(report, errors, report_path, errors_path)
+    if args.plot:
+        from morphable.plots import condition_bars
 
-            check_plot_path(args.plot)
-        common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
-                      icp_scale=args.icp_scale, landmark_scale=not args.rigid,
-                      log=logging.getLogger("evaluation.florence").info, progress=not args.quiet)
-        with logging_redirect_tqdm():
-            if args.synthetic_scan:
-                errors = {}
-                report = run_model_scans(scan_model, model, args.methods, args.conditions,
-                                         args.n_scans, args.seed, n_sampled=args.frames,
-                                         n_frames=args.video_frames, **common)
-            else:
-                report, errors = run_protocol(scan, model, args.methods, args.conditions,
-                                              args.frames, args.video_frames, args.seed,
-                                              detect=args.detect, frames_dir=args.frames_dir,
-                                              **common)
-        cells = [cell for per in report["methods"].values() for cell in per.values()]
-        if cells and all("error" in cell for cell in cells):
-            raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")
-        report["command"] = "python -m evaluation.florence " + " ".join(
-            sys.argv[1:] if argv is None else argv)
-        if args.heatmaps and not Path(args.heatmaps).is_dir():
-            raise InputError(f"{args.heatmaps}: heat-map folder does not exist")
-        print(format_table(report))
-        _write_outputs(report, errors, report_path, errors_path)
-        if args.plot:
-            from morphable.plots import condition_bars
+        condition_bars(report, args.plot)
+    if args.heatmaps:
+        from .videos import frontal_frame
 
-            condition_bars(report, args.plot)
-        if args.heatmaps:
-            from .videos import frontal_frame
-
-            frame = frontal_frame(scan.landmarks, model.landmark_positions())
-            for key in [k for k in errors if k.count("/") == 1]:
-                ids = errors[key + "/vertex_ids"]
-                save_heatmap(Path(args.heatmaps) / (key.replace("/", "_") + ".png"),
-                             errors[key + "/vertices"], errors[key + "/triangles"],
-                             errors[key][ids], frame)
-    except MorphableError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        frame = frontal_frame(scan.landmarks, model.landmark_positions())
+        for key in [k for k in errors if k.count("/") == 1]:
+            ids = errors[key + "/vertex_ids"]
+            save_heatmap(Path(args.heatmaps) / (key.replace("/", "_") + ".png"),
+                         errors[key + "/vertices"], errors[key + "/triangles"],
+                         errors[key][ids], frame)
     return 0
 
 

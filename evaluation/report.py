@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from morphable.errors import FitError, InputError, MorphableError
+from morphable.errors import FitError, InputError, one_line_errors
 
 from .florence import evaluate, reconstruct, video_landmarks
 from .scans import UNITS, load_scan
@@ -124,6 +124,7 @@ def write_outputs(result: dict, out: Path, stem: str = "error_vs_runtime") -> li
     return paths
 
 
+@one_line_errors("evaluation.report")
 def main(argv=None) -> int:
     from tqdm.contrib.logging import logging_redirect_tqdm
 
@@ -141,33 +142,29 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(levelname)s: %(message)s")
-    try:
-        for c in args.conditions:
-            if c not in CONDITIONS:
-                raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
-        out = Path(args.out)
-        existing = next(p for p in (out, *out.absolute().parents) if p.exists())
-        if not existing.is_dir():  # fail now, not after minutes of fitting
-            raise InputError(f"{out}: cannot create the output folder ({existing} is a file)")
-        from morphable import load_model
+    for c in args.conditions:
+        if c not in CONDITIONS:
+            raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+    out = Path(args.out)
+    existing = next(p for p in (out, *out.absolute().parents) if p.exists())
+    if not existing.is_dir():  # fail now, not after minutes of fitting
+        raise InputError(f"{out}: cannot create the output folder ({existing} is a file)")
+    from morphable import load_model
 
-        model = load_model(args.model)
-        scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
-        with logging_redirect_tqdm():
-            result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
-                         log=logging.getLogger("evaluation.report").info, progress=not args.quiet)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise InputError(f"{out}: cannot create the output folder ({e.strerror or e})") from None
-        result["command"] = "python -m evaluation.report " + " ".join(
-            sys.argv[1:] if argv is None else argv)
-        paths = write_outputs(result, out)
-        print(_markdown(result))
-        print("wrote " + ", ".join(map(str, paths)))
-    except MorphableError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    model = load_model(args.model)
+    scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
+    with logging_redirect_tqdm():
+        result = run(scan, model, args.methods, args.conditions, args.seed, args.video_frames,
+                     log=logging.getLogger("evaluation.report").info, progress=not args.quiet)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"{out}: cannot create the output folder ({e.strerror or e})") from None
+    result["command"] = "python -m evaluation.report " + " ".join(
+        sys.argv[1:] if argv is None else argv)
+    paths = write_outputs(result, out)
+    print(_markdown(result))
+    print("wrote " + ", ".join(map(str, paths)))
     return 0
 
 
