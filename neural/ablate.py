@@ -5,7 +5,10 @@ Variants (paper Table 3 style):
 
 - ``landmark-only``: :func:`morphable.fitting.fit_landmarks` on the projected landmarks
   (plus Gaussian pixel noise, ``--landmark-noise``);
-- ``classical``: then :func:`neural.reconstruct.refine` with the Lambertian + SH renderer;
+- ``landmarks-refit``: then :func:`neural.reconstruct.refine` with the photometric terms
+  off (landmarks and priors only, in the crop camera): what the photometric terms add is
+  measured against this;
+- ``classical``: refine with the Lambertian + SH renderer;
 - ``gar``: refine with the GAR, ``z`` initialised by the inverter V;
 - ``gar-no-initial``: the same without V (``z`` from a fixed seed; paper "w/o initial");
 - ``gar-no-norm-cycle``: the GAR trained with lambda_n = 0 (``--generator-n0``, default the
@@ -86,7 +89,9 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter
     n0 = default_no_norm_cycle_path() if generator_n0 == "auto" else generator_n0
-    variants = {"landmark-only": None, "classical": ("classical", None)}
+    variants = {"landmark-only": None,
+                "landmarks-refit": ("classical", None, {"photo": 0.0, "feat": 0.0}),
+                "classical": ("classical", None)}
     notes = {}
     try:
         gar = GARRenderer(weights=generator)
@@ -114,7 +119,7 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
                 res, secs = fit, t_fit
             else:
                 res, rep = refine(face["image"], fit, spec[0], steps=steps, inverter=spec[1],
-                                  trace_every=every)
+                                  trace_every=every, weights=spec[2] if len(spec) > 2 else None)
                 secs = t_fit + time.perf_counter() - t
                 curves[name]["vertex_mm"].append(
                     [_vertex_error(model, p["alpha"], p["beta"], face["vertices"]) for p in rep["trace"]])

@@ -149,8 +149,8 @@ def test_ablation_smoke(tmp_path):
     model, faces = held_out_faces(1, image_size=96)
     rep = run_ablation(faces, model, steps=2, generator=path, generator_n0=path, inverter=None,
                        progress=False)
-    assert set(rep["variants"]) == {"landmark-only", "classical", "gar", "gar-no-initial",
-                                    "gar-no-norm-cycle"}
+    assert set(rep["variants"]) == {"landmark-only", "landmarks-refit", "classical", "gar",
+                                    "gar-no-initial", "gar-no-norm-cycle"}
     for v in rep["variants"].values():
         assert set(v) == {"vertex_mm", "normal_deg", "s_per_image"}
         assert all(np.isfinite(x) for x in v.values())
