@@ -62,10 +62,9 @@ def geometry_errors(model, fit, true_vertices) -> tuple[float, float]:
     from morphable.normals import vertex_normals
 
     v = fit.model.vertices(fit.frame_identity[0], fit.expression[0])
-    d = float(np.linalg.norm(v - true_vertices, axis=1).mean())
     a, b = vertex_normals(v, model.triangles), vertex_normals(true_vertices, model.triangles)
     ang = np.degrees(np.arccos(np.clip((a * b).sum(1), -1, 1)))
-    return d, float(ang.mean())
+    return _vertex_error(v, true_vertices), float(ang.mean())
 
 
 def default_no_norm_cycle_path() -> Path | None:
@@ -74,9 +73,9 @@ def default_no_norm_cycle_path() -> Path | None:
     return p if p.is_file() else None
 
 
-def _vertex_error(model, alpha, beta, true_vertices) -> float:
-    v = model.vertices(np.asarray(alpha), np.asarray(beta))
-    return float(np.linalg.norm(v - true_vertices, axis=1).mean())
+def _vertex_error(vertices, true_vertices) -> float:
+    """Mean distance (mm) between corresponding vertices."""
+    return float(np.linalg.norm(vertices - true_vertices, axis=1).mean())
 
 
 def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto", inverter="auto",
@@ -89,19 +88,20 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter
     n0 = default_no_norm_cycle_path() if generator_n0 == "auto" else generator_n0
+    # name -> None (the landmark fit itself) or (renderer, inverter, loss weight overrides)
     variants = {"landmark-only": None,
                 "landmarks-refit": ("classical", None, {"photo": 0.0, "feat": 0.0}),
-                "classical": ("classical", None)}
+                "classical": ("classical", None, None)}
     notes = {}
     try:
         gar = GARRenderer(weights=generator)
-        variants["gar"] = (gar, inv)
-        variants["gar-no-initial"] = (gar, None)
+        variants["gar"] = (gar, inv, None)
+        variants["gar-no-initial"] = (gar, None, None)
         notes["generator"] = gar.weights
     except InputError as e:       # no weights: the GAR variants are skipped and say why
         notes["generator"] = f"unavailable ({e})"
     if n0:
-        variants["gar-no-norm-cycle"] = (GARRenderer(weights=n0), inv)
+        variants["gar-no-norm-cycle"] = (GARRenderer(weights=n0), inv, None)
         notes["generator_n0"] = str(n0)
     notes["inverter"] = str(inv) if inv else None
     results = {k: {"vertex_mm": [], "normal_deg": [], "s_per_image": []} for k in variants}
@@ -118,11 +118,13 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
             if spec is None:
                 res, secs = fit, t_fit
             else:
-                res, rep = refine(face["image"], fit, spec[0], steps=steps, inverter=spec[1],
-                                  trace_every=every, weights=spec[2] if len(spec) > 2 else None)
+                renderer, inv_spec, weights = spec
+                res, rep = refine(face["image"], fit, renderer, steps=steps, inverter=inv_spec,
+                                  trace_every=every, weights=weights)
                 secs = t_fit + time.perf_counter() - t
                 curves[name]["vertex_mm"].append(
-                    [_vertex_error(model, p["alpha"], p["beta"], face["vertices"]) for p in rep["trace"]])
+                    [_vertex_error(model.vertices(np.asarray(p["alpha"]), np.asarray(p["beta"])),
+                                   face["vertices"]) for p in rep["trace"]])
                 curves[name]["seconds"].append([t_fit + p["seconds"] for p in rep["trace"]])
             d, a = geometry_errors(model, res, face["vertices"])
             for k, v in zip(("vertex_mm", "normal_deg", "s_per_image"), (d, a, secs)):
