@@ -42,7 +42,7 @@ from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 from .scans import UNITS, Scan, load_scan, model_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
-__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol", "video_frames",
+__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
            "run_model_scans", "format_table", "save_heatmap", "main"]
 
 MIN_LANDMARKS = 10
@@ -229,77 +229,65 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
         save_image_png(tmp, img)
 
 
-def _sampled_frame_paths(folder: Path, condition: str, k: int) -> list:
-    """The k uniformly sampled frame files of ``folder/<condition>/``."""
+def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False):
+    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H),
+    the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None)."""
+    from PIL import Image
+
+    from morphable.io.landmarks import read_pts
+
     d = folder / condition
     frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
     if not frames:
         raise InputError(f"{d}: no frames (.png .jpg .ppm) for condition {condition}")
     if k > len(frames):
         raise InputError(f"{d}: {len(frames)} frames, cannot sample {k}")
-    return [frames[i] for i in sample_frames(len(frames), k)]
-
-
-def _frames_from_folder(folder: Path, condition: str, k: int):
-    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H))."""
-    from PIL import Image
-
-    from morphable.io.landmarks import read_pts
-
-    d = folder / condition
-    chosen = _sampled_frame_paths(folder, condition, k)
+    chosen = [frames[i] for i in sample_frames(len(frames), k)]
     sizes = {Image.open(p).size for p in chosen}
     if len(sizes) != 1:
         raise InputError(f"{d}: frames have different sizes {sorted(sizes)}")
-    out = []
+    out, images = [], []
     for p in chosen:
         pts = p.with_suffix(".pts")
+        image = (np.asarray(Image.open(p).convert("RGB"))
+                 if with_frames or not pts.is_file() else None)
         if pts.is_file():
             out.append(read_pts(pts))
         else:
             from .videos import detect_landmarks
 
-            out.append(detect_landmarks(np.asarray(Image.open(p).convert("RGB"))))
-    return np.stack(out), sizes.pop()
+            out.append(detect_landmarks(image))
+        images.append(image)
+    return np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None
 
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
-                    detect: bool = False, frames_dir=None):
-    """Landmarks of the sampled frames of one video -> ((k, 68, 2) px, (W, H), description)."""
+                    detect: bool = False, frames_dir=None, with_frames: bool = False):
+    """Landmarks of the sampled frames of one video -> ((k, 68, 2) px, (W, H), description,
+    frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
+    ``frames_dir`` — when ``with_frames``, else None."""
     if frames_dir is not None:
-        lm, size = _frames_from_folder(Path(frames_dir), condition, n_sampled)
-        return lm, size, {"source": str(Path(frames_dir) / condition)}
+        lm, size, frames = _frames_from_folder(Path(frames_dir), condition, n_sampled, with_frames)
+        return lm, size, {"source": str(Path(frames_dir) / condition)}, frames
     video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
                             n_sampled=n_sampled, seed=seed)
     lm = video.sampled_landmarks()
     desc = {"source": "synthetic", "poses_deg": video.poses_deg[video.sampled].round(2).tolist(),
             "frames": video.sampled.tolist(), "image_size": list(video.image_size)}
-    if detect:
-        from .videos import detect_landmarks, render_frames
+    frames = None
+    if detect or with_frames:
+        from .videos import render_frames
 
-        images = render_frames(scan, video, seed=seed)
-        lm = np.stack([detect_landmarks(im) for im in images])
+        frames = render_frames(scan, video, seed=seed)
+    if detect:
+        from .videos import detect_landmarks
+
+        lm = np.stack([detect_landmarks(im) for im in frames])
         desc["landmarks"] = "dlib on rendered frames"
     else:
         desc["landmarks"] = "projected scan landmarks + noise"
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
-    return lm, video.image_size, desc
-
-
-def video_frames(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
-                 frames_dir=None) -> np.ndarray:
-    """The sampled frames of one video (those :func:`video_landmarks` describes) ->
-    (k, H, W, 3) float in [0, 1]: rendered from the scan, or read from ``frames_dir``."""
-    if frames_dir is not None:
-        from PIL import Image
-
-        return np.stack([np.asarray(Image.open(p).convert("RGB"), dtype=np.float64) / 255
-                         for p in _sampled_frame_paths(Path(frames_dir), condition, n_sampled)])
-    from .videos import render_frames
-
-    video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
-                            n_sampled=n_sampled, seed=seed)
-    return render_frames(scan, video, seed=seed)
+    return lm, video.image_size, desc, frames if with_frames else None
 
 
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
@@ -331,10 +319,9 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                unit="cell")
     for c in conditions:
         bar.set_postfix_str(f"{c} video", refresh=False)
-        lm, size, desc = video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect, frames_dir)
+        lm, size, desc, images = video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect,
+                                                 frames_dir, with_frames="gar" in methods)
         report["videos"][c] = desc
-        images = (video_frames(scan, model, c, n_sampled, n_frames, seed, frames_dir)
-                  if "gar" in methods else None)
         for m in methods:
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:

@@ -67,7 +67,7 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
             per, secs = {}, []
             for c in conditions:
                 bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
-                lm, size, _ = videos[(c, effort["frames"])]
+                lm, size, _, _ = videos[(c, effort["frames"])]
                 try:
                     rec = reconstruct(m, model, lm, size, effort["settings"], peers)
                     cell, _ = evaluate(rec, scan)

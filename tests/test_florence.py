@@ -264,7 +264,8 @@ def test_detected_landmarks_on_rendered_frames(james, sfm):
     from evaluation.florence import video_landmarks
     from evaluation.videos import synthetic_video
 
-    lm, size, desc = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=True)
+    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=True)
+    assert frames is None
     assert desc["landmarks"].startswith("dlib") and size == (256, 256)
     truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
     d = np.linalg.norm(lm[:, 17:] - truth[:, 17:], axis=-1)
@@ -274,7 +275,7 @@ def test_detected_landmarks_on_rendered_frames(james, sfm):
 def test_real_frames_folder(james, sfm, tmp_path):
     from PIL import Image
 
-    from evaluation.florence import run_protocol
+    from evaluation.florence import run_protocol, video_landmarks
     from evaluation.videos import synthetic_video
     from morphable.io.landmarks import write_pts
 
@@ -289,6 +290,11 @@ def test_real_frames_folder(james, sfm, tmp_path):
                              frames_dir=tmp_path / "james")
     assert report["videos"]["indoor"]["source"].endswith("indoor")
     assert 0.2 < report["methods"]["eos"]["indoor"]["mean_mm"] < 5.0
+    # the frames themselves (for --methods gar), read once with their landmarks
+    lm, size, _, frames = video_landmarks(james, sfm, "indoor", 2, 6, 1, frames_dir=tmp_path / "james",
+                                          with_frames=True)
+    W, H = video.image_size
+    assert size == (W, H) and frames.shape == (2, H, W, 3) and frames.max() == 0.0
     with pytest.raises(InputError, match="no frames"):
         run_protocol(james, sfm, ["mean-face"], ["outdoor"], n_sampled=2, frames_dir=tmp_path / "james")
 
