@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 from morphable import load_model
 from morphable.camera import Camera, euler_to_matrix
 from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
-from morphable.fitting.correspondences import Correspondences, slide_contours
+from morphable.fitting.correspondences import Correspondences, outline_points, slide_contours
 from morphable.io.atomic import atomic_path
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -120,20 +120,21 @@ class EosFitter:
 
 def landmark_rmse(model, rotation, project, verts, landmarks):
     """RMS px over all landmarks and over the inner ones (iBUG 18-68), the same way for every
-    tool: fixed landmarks to their projected vertices, jaw points to the nearest point of the
-    projected jaw line, or where that is self-occluded to the silhouette vertex of their
-    horizontal line (the rules of ``morphable.fitting.correspondences``)."""
+    tool: fixed landmarks to their projected vertices, jaw points across the face's projected
+    outline (the rules of ``morphable.fitting.correspondences``)."""
     bank = landmark_bank(model)
     given = np.isfinite(landmarks).all(1)
     y = np.where(given[:, None], landmarks, 0.0)[None]
     corr = Correspondences.fixed(bank, 1)
     uv_rows = project(verts[bank.vertex_ids])
-    slide_contours(bank, corr, [uv_rows[None, c] for _, c in bank.polylines], y, given[None],
-                   np.asarray(rotation, dtype=np.float64)[None])
+    outlines = outline_points(bank, np.asarray(rotation, dtype=np.float64)[None, 2])
+    projected = [((1 - w[..., None]) * uv_rows[a] + w[..., None] * uv_rows[b]) for a, b, w in outlines]
+    targets, tangents = (x[0] for x in slide_contours(bank, corr, outlines, projected, y, given[None]))
     a, b, w = corr.a[0], corr.b[0], corr.w[0]
     ok = given & (a >= 0)
     uv = (1 - w[:, None]) * uv_rows[np.maximum(a, 0)] + w[:, None] * uv_rows[np.maximum(b, 0)]
-    d2 = ((uv - landmarks) ** 2).sum(1)
+    r = uv - targets
+    d2 = ((r - tangents * (r * tangents).sum(1, keepdims=True)) ** 2).sum(1)
     inner = ok & (np.arange(68) >= 17)
     return float(np.sqrt(d2[ok].mean())), float(np.sqrt(d2[inner].mean()))
 

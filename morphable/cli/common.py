@@ -17,8 +17,24 @@ def add_fitting_arguments(parser) -> None:
                         help="focal length in px (perspective; default max(W, H))")
     parser.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
     parser.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    parser.add_argument("--landmark-std", type=_landmark_std, default=1.0, metavar="PX|auto",
+                        help="landmark noise in px, or auto: estimated from the fit (default 1)")
     parser.add_argument("--detector", choices=("hog", "cnn"), default="hog",
                         help="dlib face detector for images without landmark files")
+
+
+def _landmark_std(text: str):
+    import argparse
+
+    if text == "auto":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a number nor 'auto'") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be > 0")
+    return value
 
 
 def model_from(args):

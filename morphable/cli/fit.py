@@ -62,7 +62,8 @@ def run(args):
     images = [Path(p) for p in args.images]
     res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
                             focal_px=args.focal, n_iterations=args.iterations, robust=args.robust,
-                            shared_identity=not args.independent, detector=args.detector)
+                            shared_identity=not args.independent, detector=args.detector,
+                            landmark_std_px=args.landmark_std)
     if args.refine:
         res, report = _refine(args, res, report, images)
     if args.overlay:  # first: drawing is the likeliest step to fail

@@ -56,6 +56,7 @@ def run(args):
     options = {"model": args.model, "camera": args.camera, "focal_px": args.focal,
                "iterations": args.iterations, "robust": args.robust,
                "independent": args.independent, "detector": args.detector,
+               "landmark_std_px": args.landmark_std,
                "mesh_format": args.mesh_format}
     try:
         counts = run_batch(items, out, fit_item, options, workers=args.workers,

@@ -1,20 +1,19 @@
 """Which model point each iBUG-68 landmark corresponds to, and the model rows they need.
 
-Inner landmarks map to fixed vertices (``model.landmark_ids``). Jaw landmarks slide: each
-one corresponds to the point of a jaw *polyline* (a chain of candidate vertices from the top
-of the face to the chin) whose projection is closest to the 2D point, re-picked at every
-iteration as eos does. The polylines are the model's ``contour_right``/``contour_left``
-(SFM) with the chin vertex appended; a model without contours but with fixed jaw vertices
-(ICT) uses the chain of its jaw landmark vertices, so the jaw points can slide along the jaw
-line between them.
-
-Where the jaw line is self-occluded (its normal at the landmark's expected place turns away
-from the camera) a detector puts the jaw point on the face's visible outline instead. The
-correspondence then *marches* (as in 3DDFA's landmark marching) along a horizontal line of
-vertices at the landmark's height, from the jaw line towards the face's midline, to where the
-surface starts facing the camera (interpolated between the two vertices around the zero of
-the normal's z): the silhouette of the cheek at that height. The test uses the
-mean shape's normals rotated by the current pose, so it never evaluates the full mesh.
+Inner landmarks map to fixed vertices (``model.landmark_ids``). Jaw landmarks lie on the
+face's visible *outline*, the way a 68-point detector or annotator places them, at heights
+that vary from annotator to annotator and from view to view. Each side of the face has a
+stack of horizontal *outline lines* of vertices, one every couple of millimetres from the
+height of the outer eye corner down to the chin; a line runs from the jaw line (the model's
+``contour_right``/``contour_left``, SFM; or the chain of its jaw landmark vertices, ICT)
+inwards to the midline. In every frame each line contributes one outline point: its jaw-line
+vertex where that faces the camera, else where the line crosses the cheek's silhouette
+(interpolated between the two vertices around the zero of the normal's camera component, as
+in 3DDFA's landmark marching; the mean shape's normals, so the full mesh is never
+evaluated). A jaw landmark then corresponds to the outline point nearest to it in the image,
+and only its distance *across* the outline counts: its target is moved along the outline to
+the chosen point (:func:`slide_contours`). This is eos' occluding-contour idea with a
+continuous outline, on both sides of the face.
 
 A correspondence is ``X = (1 - w) * X[a] + w * X[b]`` over two rows of a :class:`LandmarkBank`
 (``a == b``, ``w == 0`` for fixed points), so sliding between vertices is continuous.
@@ -27,11 +26,15 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours", "march_lines",
-           "march_silhouette", "expected_jaw_points"]
+           "march_silhouette", "outline_lines", "outline_points", "expected_jaw_points",
+           "OUTLINE_STEP_MM"]
 
 _RIGHT_JAW = np.arange(0, 8)
 _LEFT_JAW = np.arange(9, 17)
 _CHIN = 8
+
+OUTLINE_STEP_MM = 2.0
+"""Height between two outline lines (mean shape), mm."""
 
 
 @dataclass(eq=False)
@@ -45,12 +48,11 @@ class LandmarkBank:
     identity : (R, 3, K) float64, mm per unit coefficient
     expression : (R, 3, E) float64
     fixed_row : (68,) int, row of each landmark's fixed vertex, -1 if none (or if it slides)
-    polylines : list of (landmarks (J,), rows (C,)) — the jaw landmarks that slide on a chain
+    polylines : list of (landmarks (J,), rows (C,)) — the jaw landmarks of each side and
+        that side's jaw line (top to chin)
     normals : (R, 3) unit normals of the mean shape at the rows
-    marches : list of (J, M) int rows, -1 padded: per sliding landmark, its horizontal line
-        of vertices from the jaw line inwards (one per polyline)
-    jaw_normals : list of (J, 3) mean-shape normals where each sliding landmark is expected
-        on its chain (evenly spaced from the top to the chin), for the self-occlusion test
+    outlines : list of (L, M) int rows, -1 padded, one per polyline: the side's outline lines
+        from the top to the chin, each from the jaw line inwards (the last one is the chin)
     """
 
     vertex_ids: np.ndarray
@@ -60,8 +62,7 @@ class LandmarkBank:
     fixed_row: np.ndarray
     polylines: list
     normals: np.ndarray
-    marches: list
-    jaw_normals: list
+    outlines: list
 
     @property
     def usable(self) -> np.ndarray:
@@ -95,13 +96,9 @@ def _polylines(model, slide: bool) -> list:
     return out
 
 
-def expected_jaw_points(model, lms, chain_ids):
-    """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
-    (J,) and the chain's cumulative arc lengths (C,), mm.
-
-    iBUG jaw point 1 (17) sits at the height of the outer eye corner: the landmarks are
-    evenly spaced by arc length from where the chain passes that height (its top if lower)
-    down to the chin (8)."""
+def _chain_arc(model, chain_ids):
+    """Mean-shape chain points (C, 3), their cumulative arc lengths (C,) and the arc position
+    where the chain passes the height of the outer eye corners (0 if it starts lower), mm."""
     mean = np.asarray(model.mean, dtype=np.float64)
     P = mean[chain_ids]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
@@ -114,24 +111,39 @@ def expected_jaw_points(model, lms, chain_ids):
             i = above[-1]
             f = (P[i, 1] - eye_y) / max(P[i, 1] - P[i + 1, 1], 1e-9)
             start = arc[i] + f * (arc[i + 1] - arc[i])
+    return P, arc, start
+
+
+def _at(P, arc, at):
+    return np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1)
+
+
+def expected_jaw_points(model, lms, chain_ids):
+    """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
+    (J,) and the chain's cumulative arc lengths (C,), mm.
+
+    iBUG jaw point 1 (17) sits at the height of the outer eye corner: the landmarks are
+    evenly spaced by arc length from where the chain passes that height (its top if lower)
+    down to the chin (8)."""
+    P, arc, start = _chain_arc(model, chain_ids)
     frac = (lms if lms[0] < 8 else 16 - lms) / 8.0
     at = start + frac * (arc[-1] - start)
-    return np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1), at, arc
+    return _at(P, arc, at), at, arc
 
 
-def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
-    """Per sliding landmark, the vertex ids of a horizontal line at its height on the mean
-    shape, ordered from the jaw line inwards to the midline: the chain vertex nearest to the
-    landmark's expected place, then one vertex per ``step_mm`` of x nearer the midline (the
-    closest in height, the front-most on ties)."""
+def _horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
+                      step_mm: float = 3.0) -> list:
+    """Per point of the jaw line, the vertex ids of a horizontal line at its height on the
+    mean shape, from the jaw line inwards to the midline: the chain vertex nearest to the
+    point, then one vertex per ``step_mm`` of x nearer the midline (the closest in height,
+    the front-most on ties)."""
     mean = np.asarray(model.mean, dtype=np.float64)
     ids = np.asarray(model.segments.get("face", np.arange(len(mean))), dtype=np.int64)
-    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
+    q = mean[ids]
     out = []
-    for p in pts:
+    for p in points:
         side = np.sign(p[0]) or 1.0
         start = chain_ids[np.argmin(np.linalg.norm(mean[chain_ids] - p, axis=1))]
-        q = mean[ids]
         # starting at the jaw line keeps the march continuous where the jaw turns away
         sel = (np.abs(q[:, 1] - p[1]) < height_mm) & (side * q[:, 0] >= 0) & (
             side * q[:, 0] <= side * mean[start, 0] - 0.5 * step_mm)
@@ -143,6 +155,26 @@ def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 
             k = k[np.lexsort((-qc[k, 2], np.abs(qc[k, 1] - p[1])))][0]
             line.append(cand[k])
         out.append(np.asarray(line, dtype=np.int64))
+    return out
+
+
+def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
+    """Per sliding landmark, its horizontal line of vertices (jaw line inwards) at the height
+    where the landmark is expected on the mean shape (:func:`expected_jaw_points`)."""
+    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
+    return _horizontal_lines(model, pts, chain_ids, height_mm, step_mm)
+
+
+def outline_lines(model, chain_ids, step_mm: float = OUTLINE_STEP_MM) -> np.ndarray:
+    """(L, M) vertex ids, -1 padded: horizontal lines every ``step_mm`` of arc along the jaw
+    line, from 10 mm above the outer eye corners' height down to the chin (the last line is
+    the chin vertex alone)."""
+    P, arc, start = _chain_arc(model, chain_ids)
+    at = np.arange(max(start - 10.0, 0.0), arc[-1] - 0.5 * step_mm, step_mm)
+    lines = _horizontal_lines(model, _at(P, arc, at), chain_ids) + [chain_ids[-1:]]
+    out = np.full((len(lines), max(len(v) for v in lines)), -1, dtype=np.int64)
+    for i, v in enumerate(lines):
+        out[i, :len(v)] = v
     return out
 
 
@@ -158,26 +190,16 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
         sliding[lms] = True
     fixed = np.where(sliding, -1, ids)
     chains = [c for _, c in lines]
-    march_ids = [march_lines(model, lms, c) for lms, c in lines]
-    rows = np.unique(np.concatenate([fixed[fixed >= 0], *chains, *[v for m in march_ids for v in m]]))
-    lookup = dict(zip(rows.tolist(), range(len(rows))))
-    fixed_row = np.array([lookup.get(int(v), -1) if v >= 0 else -1 for v in fixed], dtype=np.int64)
-    polylines = [(lms, np.array([lookup[int(v)] for v in c], dtype=np.int64)) for lms, c in lines]
-    marches = []
-    for m in march_ids:
-        M = max(len(v) for v in m)
-        arr = np.full((len(m), M), -1, dtype=np.int64)
-        for i, v in enumerate(m):
-            arr[i, :len(v)] = [lookup[int(x)] for x in v]
-        marches.append(arr)
+    outline_ids = [outline_lines(model, c) for _, c in lines]
+    rows = np.unique(np.concatenate([fixed[fixed >= 0], *chains, *[o[o >= 0] for o in outline_ids]]))
+    lookup = np.full(model.n_vertices, -1, dtype=np.int64)
+    lookup[rows] = np.arange(len(rows))
+    fixed_row = np.where(fixed >= 0, lookup[np.maximum(fixed, 0)], -1)
+    polylines = [(lms, lookup[c]) for lms, c in lines]
+    outlines = [np.where(o >= 0, lookup[np.maximum(o, 0)], -1) for o in outline_ids]
     from ..normals import vertex_normals
 
     normals = vertex_normals(model.mean.astype(np.float64), model.triangles)[rows]
-    jaw_normals = []
-    for lms, c in polylines:
-        _, at, arc = expected_jaw_points(model, lms, rows[c])
-        nj = np.stack([np.interp(at, arc, normals[c][:, k]) for k in range(3)], -1)
-        jaw_normals.append(nj / np.maximum(np.linalg.norm(nj, axis=1, keepdims=True), 1e-12))
     bank = LandmarkBank(
         vertex_ids=rows,
         mean=model.mean[rows].astype(np.float64),
@@ -187,8 +209,7 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
         fixed_row=fixed_row,
         polylines=polylines,
         normals=normals,
-        marches=marches,
-        jaw_normals=jaw_normals,
+        outlines=outlines,
     )
     per_model[slide] = bank
     return bank
@@ -275,20 +296,25 @@ class Correspondences:
 
 def march_silhouette(lines, normals, view):
     """Where marching lines cross the silhouette: between the last vertex facing away and the
-    first facing the camera, at the zero of the interpolated normal's z.
+    first facing the camera, at the zero of the interpolated normal's view component.
 
     Parameters
     ----------
     lines : (J, M) int, -1 padded (any ids: rows or vertex ids)
     normals : (J, M, 3) unit normals of the line vertices
-    view : (N, 3) the third row of each rotation (camera z in model coordinates)
+    view : (N, 3) the third row of each rotation (camera z in model coordinates), or (N, J, 3)
+        one direction towards the camera per line (a pinhole camera)
 
     Returns
     -------
     a, b : (N, J) ids from ``lines``; w : (N, J) in [0, 1], the point ``(1 - w) a + w b``
     """
     J, M = lines.shape
-    nz = (normals.reshape(J * M, 3) @ view.T).T.reshape(-1, J, M)    # (N, J, M)
+    view = np.asarray(view, dtype=np.float64)
+    if view.ndim == 2:
+        nz = (normals.reshape(J * M, 3) @ view.T).T.reshape(-1, J, M)    # (N, J, M)
+    else:
+        nz = np.einsum("jmk,njk->njm", normals, view)
     valid = (lines >= 0)[None]
     front = (nz >= 0) & valid
     last = valid.sum(-1) - 1                                       # (1, J)
@@ -300,40 +326,57 @@ def march_silhouette(lines, normals, view):
     return lines[j_idx, km], lines[j_idx, k], w
 
 
-def slide_contours(bank: LandmarkBank, corr: Correspondences, projected_chains, landmarks, mask,
-                   rotation=None) -> None:
-    """Re-pick the sliding jaw correspondences in place.
+def outline_points(bank: LandmarkBank, view) -> list:
+    """Each side's outline in each frame: per polyline, ``(a, b, w)`` arrays (N, L) of bank
+    rows, the outline point of every outline line (:func:`march_silhouette` of
+    ``bank.outlines``). ``view``: (N, 3) camera z axes in model coordinates, or a list (one
+    per polyline) of (N, L, 3) directions towards a pinhole camera."""
+    out = []
+    for i, lines in enumerate(bank.outlines):
+        v = view[i] if isinstance(view, list) else view
+        out.append(march_silhouette(lines, bank.normals[np.maximum(lines, 0)], v))
+    return out
+
+
+def slide_contours(bank: LandmarkBank, corr: Correspondences, outlines, projected, landmarks,
+                   mask):
+    """Re-pick the jaw correspondences in place: each jaw landmark takes the nearest point
+    of its side's projected outline, and its target moves along the outline to that point.
 
     Parameters
     ----------
-    projected_chains : list of (N, C, 2) pixels, each polyline's rows projected with the current fit
+    outlines : per polyline, ``(a, b, w)`` (N, L) from :func:`outline_points`
+    projected : per polyline, (N, L, 2) pixels, those outline points projected with the fit
     landmarks : (N, 68, 2) pixels
     mask : (N, 68) bool, given landmarks (others keep no correspondence)
-    rotation : (N, 3, 3) or None
-        Current rotations; with them, jaw points whose jaw line faces away from the camera
-        march to the silhouette (see the module docstring).
+
+    Returns
+    -------
+    targets : (N, 68, 2) ``landmarks`` with each given jaw point moved along the outline to
+        its outline point, the nearer end of the nearest outline segment (a correspondence
+        interpolates two rows; the lines are ``OUTLINE_STEP_MM`` apart)
+    tangents : (N, 68, 2) unit directions of those segments at the given jaw points, 0
+        elsewhere: a fit counts only the residual across them
     """
-    for (lms, chain), p, jn, march in zip(bank.polylines, projected_chains, bank.jaw_normals,
-                                          bank.marches):
-        p0, d = p[:, :-1], p[:, 1:] - p[:, :-1]       # (N, S, 2)
-        y = landmarks[:, lms]                         # (N, J, 2)
-        rel = y[:, :, None, :] - p0[:, None]          # (N, J, S, 2)
+    targets = np.array(landmarks, dtype=np.float64, copy=True)
+    tangents = np.zeros_like(targets)
+    for (lms, _), (a, b, w), uv in zip(bank.polylines, outlines, projected):
+        p0, d = uv[:, :-1], uv[:, 1:] - uv[:, :-1]       # (N, S, 2)
+        y = landmarks[:, lms]                           # (N, J, 2)
+        rel = y[:, :, None, :] - p0[:, None]            # (N, J, S, 2)
         dd = np.einsum("nsk,nsk->ns", d, d)[:, None]
         t = np.clip(np.einsum("njsk,nsk->njs", rel, d) / np.maximum(dd, 1e-12), 0.0, 1.0)
         err = rel - t[..., None] * d[:, None]
         seg = np.argmin(np.einsum("njsk,njsk->njs", err, err), axis=-1)   # (N, J)
         n_idx, j_idx = np.ogrid[:len(seg), :len(lms)]
-        tt = t[n_idx, j_idx, seg]
+        e = seg + (t[n_idx, j_idx, seg] > 0.5)
         given = mask[:, lms]
-        a = np.where(given, chain[seg], -1)
-        b = np.where(given, chain[seg + 1], -1)
-        w = np.where(given, tt, 0.0)
-        if rotation is not None and march.size:
-            hidden = given & ((rotation[:, 2] @ jn.T) < 0)                # (N, J)
-            if hidden.any():
-                pa, pb_, pw = march_silhouette(march, bank.normals[np.maximum(march, 0)],
-                                               rotation[:, 2])
-                a = np.where(hidden, pa, a)
-                b = np.where(hidden, pb_, b)
-                w = np.where(hidden, pw, w)
-        corr.a[:, lms], corr.b[:, lms], corr.w[:, lms] = a, b, w
+        corr.a[:, lms] = np.where(given, a[n_idx, e], -1)
+        corr.b[:, lms] = np.where(given, b[n_idx, e], -1)
+        corr.w[:, lms] = np.where(given, w[n_idx, e], 0.0)
+        tau = d[n_idx, seg]
+        tau = tau / np.maximum(np.linalg.norm(tau, axis=-1, keepdims=True), 1e-12)
+        along = np.einsum("njk,njk->nj", uv[n_idx, e] - y, tau)[..., None] * tau
+        targets[:, lms] = np.where(given[..., None], y + along, y)
+        tangents[:, lms] = np.where(given[..., None], tau, 0.0)
+    return targets, tangents

@@ -116,7 +116,7 @@ def _detect(path, size, detector: str):
 
 def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
               n_iterations: int = 4, robust: bool = False, shared_identity: bool = True,
-              detector: str = "hog"):
+              detector: str = "hog", landmark_std_px=1.0):
     """Fit a model to one or more images of a person, from landmark files or dlib detection.
 
     Parameters
@@ -124,7 +124,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     images : list of paths
     landmarks : list of paths or None (one per image; a None entry is detected)
     model : MorphableModel or name/path for ``load_model``
-    camera, focal_px, n_iterations : see :func:`morphable.fitting.fit_landmarks`
+    camera, focal_px, n_iterations, landmark_std_px : see :func:`morphable.fitting.fit_landmarks`
     robust : bool, Huber loss
     shared_identity : bool, one identity for all images (False: independent fits)
     detector : "hog" or "cnn" (dlib)
@@ -152,7 +152,8 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         model = load_model(str(model))
     res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
-                        robust="huber" if robust else None, shared_identity=shared_identity)
+                        robust="huber" if robust else None, shared_identity=shared_identity,
+                        landmark_std_px=landmark_std_px)
     report = res.to_dict(images=[str(p) for p in images])
     report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
     return res, report
@@ -186,7 +187,7 @@ def fit_item(item, folder, options: dict) -> dict:
     (all its images together) and write ``fit.obj`` and ``fit.json`` into ``folder``.
 
     ``options``: ``model``, ``camera``, ``focal_px``, ``iterations``, ``robust``, ``independent``,
-    ``detector``, ``mesh_format`` (suffix, default ``obj``).
+    ``detector``, ``landmark_std_px``, ``mesh_format`` (suffix, default ``obj``).
 
     Returns a summary for the results log: n_frames, landmark RMSE (px, per frame and mean),
     yaw/pitch/roll of each frame (degrees) and the fit's runtime.
@@ -197,7 +198,8 @@ def fit_item(item, folder, options: dict) -> dict:
                             focal_px=options.get("focal_px"), n_iterations=options.get("iterations", 4),
                             robust=options.get("robust", False),
                             shared_identity=not options.get("independent", False),
-                            detector=options.get("detector", "hog"))
+                            detector=options.get("detector", "hog"),
+                            landmark_std_px=options.get("landmark_std_px", 1.0))
     suffix = options.get("mesh_format", "obj").lstrip(".")
     write_fit(res, report, mesh=folder / f"fit.{suffix}", report_path=folder / "fit.json")
     rmse = [round(float(x), 4) for x in res.landmark_rmse_px]

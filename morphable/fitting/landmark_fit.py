@@ -4,8 +4,9 @@ Steps (each usable alone through the functions of this package):
 
 1. linear pose: a scaled orthographic camera from the 2D points and the model's mean
    landmarks (:func:`~morphable.fitting.pose.estimate_affine_pose`);
-2. jaw correspondences: each 2D jaw point takes the closest point of the projected jaw
-   line, or where that line is self-occluded marches to the cheek's silhouette
+2. jaw correspondences: each 2D jaw point takes the nearest point of the face's projected
+   outline — the jaw line where it faces the camera, else the cheek's silhouette, at any
+   height — and only its distance across the outline counts
    (:func:`~morphable.fitting.correspondences.slide_contours`); re-picked every round and
    every second nonlinear iteration;
 3. closed-form solves for identity, then expression, under the Gaussian prior
@@ -21,7 +22,11 @@ Cost (per fit)::
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
 with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
-``prior_weight = 1``. Only the landmark rows of the model are evaluated, never the full mesh.
+``prior_weight = 1`` (for jaw points ``uv - y`` is its component across the outline). Only
+the landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
+estimates the detector's noise from the residuals (MacKay's evidence approximation: the
+normalised residuals of a fit add up to their degrees of freedom, the observations minus the
+trace of the hat matrix) and refits.
 
 Noise model. A landmark's 2D residual has three parts: the detector's noise
 (``landmark_std_px``, new in every frame), the model's per-frame error (``model_std_mm``), and
@@ -35,7 +40,9 @@ block): marginalising it gives each landmark's residuals across frames the covar
 ``s^2 I + (k definition_std_mm)^2 1 1^T`` (per coordinate, affine, same pose). A single
 frame, or an independent fit per frame, cannot tell the offset from per-frame error; there
 it only adds its variance: ``s^2 += (k definition_std_mm)^2``, exactly what marginalising it
-gives. Sliding jaw points get no offset (they are defined by the outline they slide on).
+gives. Sliding jaw points get no offset (they are defined by the outline they slide on). The
+default ``definition_std_mm`` differs per landmark group (:data:`DEFINITION_STD_MM`: eyebrows
+4.2 mm, nose base 1.6 mm...).
 """
 from __future__ import annotations
 
@@ -45,15 +52,38 @@ import numpy as np
 
 from ..errors import FitError, InputError
 from ..landmarks import as_landmarks
-from .correspondences import Correspondences, landmark_bank, slide_contours
+from .correspondences import Correspondences, landmark_bank, outline_points, slide_contours
 from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
 
-__all__ = ["fit_landmarks"]
+__all__ = ["fit_landmarks", "DEFINITION_STD_MM"]
+
+AUTO_ROUNDS = 1
+"""Re-estimations of the landmark noise for ``landmark_std_px="auto"`` (each one refits)."""
 
 AFFINE_DISTANCE_MM = 600.0
 """Camera distance reported for affine fits (the projection does not depend on it)."""
+
+
+def _definition_profile() -> np.ndarray:
+    d = np.empty(68)
+    d[0:17] = 2.0        # the jaw outline (distance across it; not measured: no SFM vertices)
+    d[8] = 3.1           # chin
+    d[17:27] = 4.2       # eyebrows
+    d[27:31] = 2.7       # nose ridge
+    d[31:36] = 1.6       # nose base
+    d[36:48] = 2.3       # eye corners and lids
+    d[48:68] = 2.5       # mouth
+    return d
+
+
+DEFINITION_STD_MM = _definition_profile()
+"""(68,) default ``definition_std_mm``, mm per coordinate: how far a landmark's annotation
+typically lies from the model's landmark vertex, per group (the eyebrows are the least well
+defined): the per-coordinate RMS of the ICT FaceKit landmark vertices against SFM fits of the
+same faces, 6 subjects, rounded (``python -m evaluation.landmark_definitions --synthetic-scan
+ict --n-scans 6``)."""
 
 
 class _Problem:
@@ -63,6 +93,10 @@ class _Problem:
                  prior_weight, expression_weight, landmark_std_px, model_std_mm, robust, huber_k,
                  definition_std_mm=0.0):
         self.bank, self.y, self.mask, self.principal = bank, y, mask, principal
+        # the given landmarks; ``y`` holds the jaw targets moved along the outline, ``tangent``
+        # the outline's direction at each jaw point (0 elsewhere): only residuals across count
+        self.y_obs = y
+        self.tangent = np.zeros_like(y)
         self.focal, self.perspective, self.K, self.E = focal, perspective, K, E
         self.shared, self.nonneg = shared, nonneg
         self.prior_weight, self.expression_weight = prior_weight, expression_weight
@@ -73,13 +107,15 @@ class _Problem:
         # identity for several frames it gets its own coefficients (a 3D offset per landmark,
         # N(0, definition_std_mm^2) per coordinate), appended to the identity's; alone, a frame
         # cannot tell it from noise and it only widens the landmark's variance
-        self.offsets = bool(shared and self.N > 1 and definition_std_mm > 0)
+        definition_std_mm = np.broadcast_to(np.asarray(definition_std_mm, np.float64), (y.shape[1],))
+        self.offsets = bool(shared and self.N > 1 and np.any(definition_std_mm > 0))
         self.n_identity = K
         sliding = [int(j) for lms, _ in bank.polylines for j in lms]
+        self.sliding_landmarks = np.asarray(sliding, dtype=np.int64)
         # sliding jaw points are defined by the outline they slide on: no offset
         self.offset_landmarks = np.setdiff1d(np.arange(y.shape[1]), sliding)
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
-        self.frame_def_std = 0.0 if self.offsets else definition_std_mm
+        self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
         self.prior = np.r_[np.full(K, prior_weight), np.ones(self.D)]
         self.A = np.ascontiguousarray(bank.identity[:, :, :K])
@@ -101,7 +137,7 @@ def _offset_rows(pb: _Problem):
     lms = pb.offset_landmarks
     O = np.zeros((3, pb.y.shape[1], pb.D))
     for a in range(3):
-        O[a, lms, 3 * np.arange(len(lms)) + a] = pb.definition_std_mm
+        O[a, lms, 3 * np.arange(len(lms)) + a] = pb.definition_std_mm[lms]
     return np.broadcast_to(O, (pb.N,) + O.shape)
 
 
@@ -172,28 +208,95 @@ def _project_state(pb: _Problem, st: _State, X, jacobian=True):
     return project(X, st.R, st.t, st.k, pb.principal, pb.perspective, jacobian)
 
 
-def _weights(pb: _Problem, st: _State, depth=None):
-    """(N, 68) data weights 1/s^2 (0 for unused landmarks)."""
+def _model_variance(pb: _Problem, st: _State, depth=None):
+    """(N, 68) px^2: the model's part of each landmark's variance, (k model_std_mm)^2 plus,
+    where no offset carries it, (k definition_std_mm)^2 (k the image scale in px/mm)."""
     scale = st.k
     if pb.perspective and depth is not None:
         used = pb.mask & st.corr.defined
         d = np.where(used, depth, 0.0).sum(1) / np.maximum(used.sum(1), 1)
         scale = st.k / np.maximum(d, 1e-6)
-    s2 = pb.landmark_std_px ** 2 + scale ** 2 * (pb.model_std_mm ** 2 + pb.frame_def_std ** 2)
-    return np.where(pb.mask & st.corr.defined, 1.0 / s2[:, None], 0.0)
+    return scale[:, None] ** 2 * (pb.model_std_mm ** 2 + pb.frame_def_std ** 2)
+
+
+def _weights(pb: _Problem, st: _State, depth=None):
+    """(N, 68) data weights 1/s^2 (0 for unused landmarks)."""
+    s2 = np.asarray(pb.landmark_std_px)[..., None] ** 2 + _model_variance(pb, st, depth)
+    return np.where(pb.mask & st.corr.defined, 1.0 / s2, 0.0)
+
+
+def _effective_parameters(pb: _Problem, st: _State) -> np.ndarray:
+    """(G,) the number of parameters the landmarks actually determine, per group of frames
+    that share an identity: the trace of the fit's hat matrix (MacKay's gamma). A free
+    parameter (pose) counts 1, a regularised one ``1 - prior * posterior variance``, one
+    held at its bound 0; the posterior covariance comes from the Schur complement."""
+    Hff, _, Hfa, Haa, _, _, act, _ = _normal_equations(pb, st)
+    E, K = pb.E, pb.K
+    Hinv = np.linalg.inv(Hff)
+    var = np.diagonal(Hinv, axis1=1, axis2=2).copy()
+    gamma = np.zeros(Haa.shape[0])
+    if K:
+        X1 = Hinv @ Hfa                                                      # (N, Pf, K)
+        Saa = np.linalg.inv(Haa - _gsum(pb, Hfa.transpose(0, 2, 1) @ X1))    # (G, K, K)
+        var += np.einsum("npk,nkl,npl->np", X1, Saa[_group_index(pb)], X1)
+        gamma += (1.0 - pb.prior * np.diagonal(Saa, axis1=1, axis2=2)).sum(1)
+    prior_f = np.r_[np.zeros(Hff.shape[1] - E), np.full(E, pb.expression_weight)]
+    return gamma + _gsum(pb, np.where(act, 0.0, 1.0 - prior_f * var).sum(1))
+
+
+def _group_index(pb: _Problem) -> np.ndarray:
+    return np.zeros(pb.N, int) if pb.shared else np.arange(pb.N)
+
+
+def _estimate_landmark_std(pb: _Problem, st: _State, floor_px: float = 0.25) -> np.ndarray:
+    """(N,) px: per group of frames, the landmark noise at which the normalised residuals add
+    up to their degrees of freedom, ``sum r^2 / (sigma^2 + model variance) = n - gamma``
+    (n residual coordinates, one per jaw point as only its distance across the outline
+    counts; gamma from :func:`_effective_parameters`). Never below ``floor_px``."""
+    _, _, _, _, depth, r = _residuals(pb, st, False)
+    used = pb.mask & st.corr.defined
+    r2 = np.where(used, (r * r).sum(-1), 0.0)
+    c = _model_variance(pb, st, depth)
+    n = 2 * used.sum(1) - used[:, pb.sliding_landmarks].sum(1)
+    dof = _gsum(pb, n.astype(np.float64)) - _effective_parameters(pb, st)
+
+    def excess(s2):                     # decreasing in sigma^2 (s2: per group)
+        return _gsum(pb, np.where(used, r2 / (s2[_group_index(pb)][:, None] + c), 0.0).sum(1)) - dof
+    lo = np.full(dof.shape, floor_px ** 2)
+    hi = np.maximum(_gsum(pb, r2.sum(1)) / np.maximum(dof, 1.0), lo) * 4.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        up = excess(mid) > 0
+        lo, hi = np.where(up, mid, lo), np.where(up, hi, mid)
+    s2 = np.where((dof > 0) & (excess(np.full(dof.shape, floor_px ** 2)) > 0), 0.5 * (lo + hi),
+                  floor_px ** 2)
+    return np.sqrt(s2)[_group_index(pb)]
 
 
 def _slide(pb: _Problem, st: _State):
+    """Re-pick the jaw correspondences on the current outline and move their targets along it
+    (:func:`~morphable.fitting.correspondences.slide_contours`)."""
     bank = pb.bank
     if not bank.polylines:
         return
-    chains = []
-    for _, rows in bank.polylines:
-        X = bank.mean[rows] + np.einsum("rik,gk->gri", pb.A[rows], st.alpha[:, :pb.n_identity])
-        if pb.E:
-            X = X + np.einsum("rie,ne->nri", pb.B[rows], st.beta)
-        chains.append(_project_state(pb, st, np.broadcast_to(X, (pb.N,) + X.shape[1:]), False)[0])
-    slide_contours(bank, st.corr, chains, pb.y, pb.mask, st.R)
+    if pb.perspective:
+        # a pinhole camera sees the outline where the surface turns away from its centre
+        centre = -np.einsum("nji,nj->ni", st.R, st.t)
+        view = []
+        for lines in bank.outlines:
+            v = centre[:, None] - bank.mean[lines[:, 0]][None]
+            view.append(v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
+    else:
+        view = st.R[:, 2]
+    outlines = outline_points(bank, view)
+    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
+    projected = []
+    for a, b, w in outlines:
+        X = [bank.mean[r] + np.einsum("nlik,nk->nli", pb.A[r], alpha)
+             + (np.einsum("nlie,ne->nli", pb.B[r], st.beta) if pb.E else 0.0) for r in (a, b)]
+        X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
+        projected.append(_project_state(pb, st, X, False)[0])
+    pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
 
 
 def _linear_stage(pb: _Problem, n_linear: int) -> _State:
@@ -248,10 +351,28 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
 
 
 def _residuals(pb: _Problem, st: _State, jacobian: bool):
-    """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals."""
+    """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals (jaw
+    points: across the outline only)."""
     X = _points(pb, st)
     uv, Xc, J, depth = _project_state(pb, st, X, jacobian)
-    return X, uv, Xc, J, depth, uv - pb.y
+    return X, uv, Xc, J, depth, _across(pb.tangent, uv - pb.y)
+
+
+def _across(tangent, r):
+    """Residuals (n, 68, 2) without their component along the outline (``tangent`` (n, 68, 2),
+    unit for jaw points, 0 for the others)."""
+    return r - tangent * (r * tangent).sum(-1, keepdims=True)
+
+
+def _across_rows(pb: _Problem, J):
+    """The same projection for coordinate-major Jacobian rows (N, 2, 68, P), in place, on the
+    jaw slice only."""
+    if pb.sliding is None:
+        return J
+    t = pb.tangent[:, pb.sliding].transpose(0, 2, 1)[..., None]      # (N, 2, J, 1)
+    Js = J[:, :, pb.sliding]
+    J[:, :, pb.sliding] = Js - t * (t * Js).sum(1, keepdims=True)
+    return J
 
 
 def _data_cost(pb, st, W, r=None, depth=None):
@@ -280,6 +401,58 @@ def _robust(pb, W, r):
     return W * np.where(e > pb.huber_k, pb.huber_k / np.maximum(e, 1e-300), 1.0)
 
 
+def _normal_equations(pb: _Problem, st: _State):
+    """Gauss-Newton blocks at the current state, priors included: per frame Hff (N, Pf, Pf)
+    and gf over rotation, translation, scale (affine) and expressions; Hfa (N, Pf, K) to the
+    shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, 68), the group
+    costs (G,) and the expression bound's active set (N, Pf)."""
+    N, K, E = pb.N, pb.K, pb.E
+    n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
+    Pf = 3 + n_t + n_rho + E
+    act = np.zeros((N, Pf), bool)
+    X, uv, Xc, Jp, depth, r = _residuals(pb, st, True)
+    W = _robust(pb, _weights(pb, st, depth), r)
+    cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
+    # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
+    RX = Xc - st.t[:, None]
+    blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
+    if n_rho:
+        blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
+    blocks = [np.concatenate(blocks, -1).transpose(0, 2, 1, 3)]
+    # the affine Jacobian is the same for every point: one GEMM per frame
+    JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
+    if E:
+        blocks.append(project_rows(JpR, st.rows[2]))
+    Jf = _across_rows(pb, np.concatenate(blocks, -1)).reshape(N, 136, Pf)
+    Ja4 = _across_rows(pb, project_rows(JpR, st.rows[1]))          # (N, 2, 68, K)
+    Ja = Ja4.reshape(N, 136, K)
+    w2 = np.concatenate([W, W], 1)[..., None]
+    rr = r.transpose(0, 2, 1).reshape(N, 136)
+    WJf, WJa = w2 * Jf, w2 * Ja
+    Hff = Jf.transpose(0, 2, 1) @ WJf
+    gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
+    if E:
+        Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
+        gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
+    Hfa = Jf.transpose(0, 2, 1) @ WJa
+    if E and pb.nonneg:
+        # blendshape weights held at 0 by the bound leave this step (projected Newton)
+        o = 3 + n_t + n_rho
+        act[:, o:] = (st.beta <= 0) & (gf[:, o:] > 0)
+        if act.any():
+            keep = ~act
+            Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
+            gf = np.where(keep, gf, 0.0)
+            Hfa = np.where(keep[:, :, None], Hfa, 0.0)
+    Haa = gram_hessian(JpR, W, Ja4, pb.gram)
+    ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
+    if pb.shared:
+        Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
+    Haa[:, np.arange(K), np.arange(K)] += pb.prior
+    ga = ga + pb.prior * st.alpha
+    return Hff, gf, Hfa, Haa, ga, W, act, cost0
+
+
 def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
     N, K, E = pb.N, pb.K, pb.E
     G = 1 if pb.shared else N
@@ -289,55 +462,20 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
     mu = np.full(G, 1e-3)
     gidx = np.zeros(N, int) if pb.shared else np.arange(N)
     iters = 0
+    # a group that has converged stops moving, so that fitting frames together or alone
+    # gives the same result
+    active = np.ones(G, bool)
     for it in range(n_iter):
         if it % slide_every == 0 and it:
             _slide(pb, st)
             _gather(pb, st, sliding_only=True)
-        X, uv, Xc, Jp, depth, r = _residuals(pb, st, True)
-        W = _robust(pb, _weights(pb, st, depth), r)
-        cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
-        # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
-        RX = Xc - st.t[:, None]
-        blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
-        if n_rho:
-            blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
-        blocks = [np.concatenate(blocks, -1).transpose(0, 2, 1, 3)]
-        # the affine Jacobian is the same for every point: one GEMM per frame
-        JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
-        if E:
-            blocks.append(project_rows(JpR, st.rows[2]))
-        Jf = np.concatenate(blocks, -1).reshape(N, 136, Pf)
-        Ja4 = project_rows(JpR, st.rows[1])                            # (N, 2, 68, K)
-        Ja = Ja4.reshape(N, 136, K)
-        w2 = np.concatenate([W, W], 1)[..., None]
-        rr = r.transpose(0, 2, 1).reshape(N, 136)
-        WJf, WJa = w2 * Jf, w2 * Ja
-        Hff = Jf.transpose(0, 2, 1) @ WJf
-        gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
-        if E:
-            Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
-            gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
-        Hfa = Jf.transpose(0, 2, 1) @ WJa
-        if E and pb.nonneg:
-            # blendshape weights held at 0 by the bound leave this step (projected Newton)
-            o = 3 + n_t + n_rho
-            act = np.zeros((N, Pf), bool)
-            act[:, o:] = (st.beta <= 0) & (gf[:, o:] > 0)
-            if act.any():
-                keep = ~act
-                Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
-                gf = np.where(keep, gf, 0.0)
-                Hfa = np.where(keep[:, :, None], Hfa, 0.0)
-        Haa = gram_hessian(JpR, W, Ja4, pb.gram)
-        ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
-        if pb.shared:
-            Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
-        Haa[:, np.arange(K), np.arange(K)] += pb.prior
-        ga = ga + pb.prior * st.alpha
-        accepted = np.zeros(G, bool)
+        Hff, gf, Hfa, Haa, ga, W, _, cost0 = _normal_equations(pb, st)
+        accepted = ~active
+        stepped = np.zeros(G, bool)
+        gain = np.zeros(G)
         for attempt in range(4):          # retry rejected groups with more damping
-            # independent frames: re-solve only the ones still rejected
-            sel = slice(None) if pb.shared or not attempt else np.flatnonzero(~accepted)
+            # independent frames: solve only the active ones still rejected
+            sel = slice(None) if pb.shared else np.flatnonzero(~accepted)
             gs = slice(None) if pb.shared else sel
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
@@ -359,19 +497,20 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
             cost1 = np.full(G, np.inf)
             cost1[gs] = _subset_cost(pb, new, W, sel)
             ok = np.isfinite(cost1) & (cost1 <= cost0) & ~accepted
-            gain = np.where(ok, cost0 - cost1, gain if attempt else 0.0)
+            gain = np.where(ok, cost0 - cost1, gain)
             if ok.any():
                 st = _merge(pb, st, new, ok[gidx], ok)
                 accepted |= ok
+                stepped |= ok
                 mu = np.where(ok, np.maximum(mu / 3, 1e-9), mu)
             mu = np.where(~accepted, mu * 8, mu)
             if accepted.all():
                 break
         iters += 1
-        if not accepted.any() or np.all(mu > 1e8):
+        # a group stops when no damping gave it a better step, or when it has converged
+        active &= stepped & (gain > 1e-6 * np.maximum(cost0, 1e-12)) & (mu <= 1e8)
+        if not active.any():
             break
-        if np.all(gain <= 1e-6 * np.maximum(cost0, 1e-12)):
-            break           # converged
     return st, iters
 
 
@@ -386,7 +525,7 @@ def _subset_cost(pb, st, W, sel):
     if pb.E:
         X = X + _combine(B, st.beta[sel])
     uv, _, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel], pb.perspective, False)
-    r = uv - pb.y[sel]
+    r = _across(pb.tangent[sel], uv - pb.y[sel])
     w = W[sel]
     c = (w * (r * r).sum(-1)).sum(1)
     if pb.perspective:
@@ -458,8 +597,8 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                   n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
                   huber_k: float = 1.345, shared_identity: bool = True,
-                  landmark_std_px: float = 1.0, model_std_mm: float = 1.5,
-                  definition_std_mm: float = 2.0, focal_px=None,
+                  landmark_std_px=1.0, model_std_mm: float = 1.5,
+                  definition_std_mm=DEFINITION_STD_MM, focal_px=None,
                   contour: str = "slide", dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D iBUG-68 landmarks of one or more images.
 
@@ -488,13 +627,20 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
     shared_identity : bool
         True: one identity for all frames. False: every frame is fitted on its own (batch mode,
         vectorised); ``identity`` is then the average of the per-frame identities.
-    landmark_std_px, model_std_mm : float
-        Noise of the 2D points (px) and the model's per-frame landmark error (mm).
-    definition_std_mm : float
-        Standard deviation (mm, per coordinate) of each fixed landmark's definition error, one
-        3D offset shared by all frames of a subject (see the module docstring); 0 = none.
+    landmark_std_px : float or "auto"
+        Noise of the 2D points (px). "auto" estimates it from the fit's own residuals (fit at
+        1 px, set the noise so that the normalised residuals add up to their degrees of
+        freedom, refit), one value per shared identity; it costs about 60 % more time. The
+        noise used is ``FitResult.landmark_std_px``.
+    model_std_mm : float
+        The model's per-frame landmark error (mm).
+    definition_std_mm : float or (68,) array
+        Standard deviation (mm, per coordinate) of each landmark's definition error, one 3D
+        offset shared by all frames of a subject (see the module docstring); 0 = none.
+        Default :data:`DEFINITION_STD_MM`, largest for the eyebrows.
     contour : {"slide", "fixed"}
-        "slide" re-picks the jaw correspondences along the jaw polylines at every iteration.
+        "slide": jaw points correspond to the face's outline, re-picked at every iteration
+        (:mod:`~morphable.fitting.correspondences`); "fixed": to fixed vertices, if any.
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
 
     Returns
@@ -528,12 +674,20 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         raise InputError(f"contour: expected 'slide' or 'fixed', got {contour!r}")
     if robust not in (None, "huber"):
         raise InputError(f"robust: expected None or 'huber', got {robust!r}")
+    auto_std = isinstance(landmark_std_px, str)
+    if auto_std and landmark_std_px != "auto":
+        raise InputError(f"landmark_std_px: expected a number or 'auto', got {landmark_std_px!r}")
+    definition_std_mm = np.asarray(definition_std_mm, dtype=np.float64)
+    if definition_std_mm.shape not in ((), (68,)):
+        raise InputError(f"definition_std_mm: expected a number or 68 numbers, got shape "
+                         f"{definition_std_mm.shape}")
     for name, v in (("prior_weight", prior_weight), ("expression_weight", expression_weight),
-                    ("landmark_std_px", landmark_std_px), ("model_std_mm", model_std_mm),
-                    ("definition_std_mm", definition_std_mm), ("huber_k", huber_k)):
-        if not (np.isfinite(v) and v >= 0):
-            raise InputError(f"{name}: must be a finite number >= 0, got {v}")
-    if landmark_std_px == 0 and model_std_mm == 0:
+                    ("landmark_std_px", 1.0 if auto_std else landmark_std_px),
+                    ("model_std_mm", model_std_mm), ("definition_std_mm", definition_std_mm),
+                    ("huber_k", huber_k)):
+        if not (np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)):
+            raise InputError(f"{name}: must be finite and >= 0, got {v}")
+    if not auto_std and landmark_std_px == 0 and model_std_mm == 0:
         raise InputError("landmark_std_px and model_std_mm cannot both be 0")
     y, given, size = _as_frames(landmarks, mask, image_size)
     N = y.shape[0]
@@ -561,11 +715,17 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                        f"(given and defined on model {model.name}), need at least 4")
     pb = _Problem(bank, y, usable, principal, focal, perspective, K, E, shared_identity,
                   model.expression_kind == "blendshapes", float(prior_weight),
-                  float(expression_weight), float(landmark_std_px), float(model_std_mm),
-                  robust, float(huber_k), float(definition_std_mm))
+                  float(expression_weight), 1.0 if auto_std else float(landmark_std_px),
+                  float(model_std_mm), robust, float(huber_k), definition_std_mm)
     with np.errstate(all="ignore"):
         st = _linear_stage(pb, n_linear)
         st, iters = _lm_stage(pb, st, n_iterations)
+        for _ in range(AUTO_ROUNDS if auto_std else 0):
+            _slide(pb, st)
+            _gather(pb, st, sliding_only=True)
+            pb.landmark_std_px = _estimate_landmark_std(pb, st)
+            st, more = _lm_stage(pb, st, n_iterations)
+            iters += more
         _slide(pb, st)
         _gather(pb, st, sliding_only=True)
         _, uv, _, _, depth, r = _residuals(pb, st, False)
@@ -590,12 +750,14 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                            focal=float(st.k[i]) if perspective else 1.0,
                            image_size=(W_, H_), principal=principal[i]))
     frame_alpha = np.broadcast_to(st.alpha[:, :K], (N, K)).copy()
-    fitted = np.where(used[..., None], uv, np.nan)
+    # jaw points: the foot of the landmark on the fitted outline (the target moved along it)
+    fitted = np.where(used[..., None], y + r, np.nan)
     res = FitResult(model=model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
                     expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,
                     landmarks=np.where(given[..., None], y, np.nan), fitted_landmarks=fitted,
                     landmark_vertices=np.where(used, st.corr.vertex_ids(bank), -1),
                     shared_identity=bool(shared_identity), iterations=iters,
-                    cost=(np.where(used, d2, 0.0)).sum(1), dtype=np.dtype(dtype))
+                    cost=(np.where(used, d2, 0.0)).sum(1), dtype=np.dtype(dtype),
+                    landmark_std_px=np.broadcast_to(pb.landmark_std_px, (N,)).astype(np.float64))
     res.runtime_ms = (time.perf_counter() - t0) * 1e3
     return res

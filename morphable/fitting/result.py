@@ -21,15 +21,19 @@ class FitResult:
     expression : (N, E) float64, per-frame expression coefficients
     cameras : list of N :class:`morphable.camera.Camera`
     landmark_rmse_px : (N,) float64, RMS distance (px) between the given landmarks and the
-        projections of their model points, over the landmarks used by the fit
+        projections of their model points (jaw points: the distance across the fitted
+        outline), over the landmarks used by the fit
     landmarks : (N, 68, 2) the input pixels (NaN where missing)
-    fitted_landmarks : (N, 68, 2) projected model points (NaN where unused)
+    fitted_landmarks : (N, 68, 2) projected model points (jaw points: the foot of the given
+        point on the projected outline; NaN where unused)
     landmark_vertices : (N, 68) int, nearest model vertex of each used landmark, -1 if unused
     shared_identity : bool
     iterations : int, nonlinear iterations run
     runtime_ms : float, wall time of the fit (without the once-per-model preparation of its
         landmark rows)
     cost : (N,) px^2, final sum of squared landmark residuals per frame
+    landmark_std_px : (N,) float64, the landmark noise (px) the fit assumed for each frame
+        (estimated for ``"auto"``: one value per shared identity, else per frame)
     """
 
     model: object
@@ -46,6 +50,7 @@ class FitResult:
     runtime_ms: float = 0.0
     cost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     dtype: object = np.float64
+    landmark_std_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_frames(self) -> int:
@@ -78,6 +83,7 @@ class FitResult:
             yaw, pitch, roll = (float(a) for a in cam.euler_deg)
             f = {"image": None if images[i] is None else str(images[i]),
                  "landmark_rmse_px": float(self.landmark_rmse_px[i]),
+                 "landmark_std_px": float(self.landmark_std_px[i]) if len(self.landmark_std_px) else None,
                  "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll,
                  "translation": [float(x) for x in cam.translation], "camera": cam.kind,
                  "image_size": list(cam.image_size),
