@@ -105,7 +105,7 @@ def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruc
 
 
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
-                peers: dict | None = None, images=None) -> Reconstruction:
+                peers: dict | None = None, images=None, focal_px=None) -> Reconstruction:
     """Reconstruct one face from the landmarks of several frames.
 
     Parameters
@@ -119,6 +119,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     peers : cache of loaded peer fitters (reused between calls)
     images : (N, H, W, 3) the frames themselves (gar: a per-frame landmark fit refined by
         inverting the GAR, :func:`neural.reconstruct.refine_frames`, then averaged)
+    focal_px : the video camera's focal length (px) when known: ours and ours-independent
+        then fit a pinhole camera with it (unless ``effort["camera"]`` says "affine"); None
+        = an affine camera. eos always fits its affine camera. Ours and ours-independent
+        estimate the landmark noise (``landmark_std_px="auto"``) unless ``effort`` sets it.
 
     Returns
     -------
@@ -142,13 +146,20 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
             from morphable.fitting import fit_landmarks
         except ImportError as e:
             raise InputError(f"method {method}: morphable.fitting is not available ({e})") from None
+        camera = effort.pop("camera", "perspective" if focal_px is not None else "affine")
+        if camera == "perspective" and focal_px is not None:
+            effort.setdefault("focal_px", focal_px)
+        # a video's landmark noise is unknown (detector, resolution, blur): estimate it
+        effort.setdefault("landmark_std_px", "auto")
         t = time.perf_counter()
-        res = fit_landmarks(model, lm, image_size, camera=effort.pop("camera", "affine"),
+        res = fit_landmarks(model, lm, image_size, camera=camera,
                             shared_identity=method == "ours", **effort)
         v = res.vertices().mean(0)
         dt = time.perf_counter() - t
         return _reconstruction(model, v, dt, len(lm),
-                               {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px))})
+                               {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px)),
+                                "landmark_std_px": float(np.mean(res.landmark_std_px)),
+                                "camera": camera})
     if method == "eos":
         from morphable import load_model
 
@@ -273,7 +284,8 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
                             n_sampled=n_sampled, seed=seed)
     lm = video.sampled_landmarks()
     desc = {"source": "synthetic", "poses_deg": video.poses_deg[video.sampled].round(2).tolist(),
-            "frames": video.sampled.tolist(), "image_size": list(video.image_size)}
+            "frames": video.sampled.tolist(), "image_size": list(video.image_size),
+            "focal_px": float(video.cameras[0].focal)}
     frames = None
     if detect or with_frames:
         from .videos import render_frames
@@ -293,9 +305,10 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
                  seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
-                 landmark_scale: bool = True, log=None, progress: bool = False):
+                 landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None):
     """Run every method on every condition (``log``: a callable taking one line per cell;
-    ``progress``: a tqdm bar on stderr).
+    ``progress``: a tqdm bar on stderr; ``focal_px``: the camera's focal length for real
+    frames, if known — synthetic videos know theirs).
 
     Returns
     -------
@@ -325,7 +338,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
         for m in methods:
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:
-                rec = reconstruct(m, model, lm, size, efforts.get(m), peers, images)
+                rec = reconstruct(m, model, lm, size, efforts.get(m), peers, images,
+                                  desc.get("focal_px", focal_px))
                 cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
             except FitError as e:
                 cell, cmp = {"error": str(e)}, None
@@ -462,7 +476,13 @@ def _parser():
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
     p.add_argument("--iterations", type=int, help="iterations of ours (default: the fitter's)")
     p.add_argument("--definition-std", type=float,
-                   help="ours: landmark definition error, mm (default: the fitter's)")
+                   help="ours: landmark definition error, mm, for every landmark (default: the "
+                        "fitter's per-landmark profile)")
+    p.add_argument("--camera", choices=["auto", "affine", "perspective"], default="auto",
+                   help="ours: camera model; auto = pinhole where the focal length is known "
+                        "(synthetic videos, --focal-px), else affine")
+    p.add_argument("--focal-px", type=float,
+                   help="focal length of the camera of --frames-dir, px (default: unknown)")
     p.add_argument("--model-std", type=float,
                    help="ours: per-frame model landmark error, mm (default: the fitter's)")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
@@ -519,7 +539,13 @@ def main(argv=None) -> int:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
     ours = {k: v for k, v in (("n_iterations", args.iterations),
                               ("definition_std_mm", args.definition_std),
-                              ("model_std_mm", args.model_std)) if v is not None}
+                              ("model_std_mm", args.model_std),
+                              ("camera", None if args.camera == "auto" else args.camera))
+            if v is not None}
+    if args.focal_px is not None and not (np.isfinite(args.focal_px) and args.focal_px > 0):
+        raise InputError(f"--focal-px {args.focal_px}: must be a positive number")
+    if args.focal_px is not None and not args.frames_dir:
+        raise InputError("--focal-px applies to --frames-dir (synthetic videos know their focal)")
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
     if args.plot:
         from morphable.plots import check_plot_path
@@ -538,7 +564,7 @@ def main(argv=None) -> int:
             report, errors = run_protocol(scan, model, args.methods, args.conditions,
                                           args.frames, args.video_frames, args.seed,
                                           detect=args.detect, frames_dir=args.frames_dir,
-                                          **common)
+                                          focal_px=args.focal_px, **common)
     cells = [cell for per in report["methods"].values() for cell in per.values()]
     if cells and all("error" in cell for cell in cells):
         raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")

@@ -67,9 +67,10 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
             per, secs = {}, []
             for c in conditions:
                 bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
-                lm, size, _, _ = videos[(c, effort["frames"])]
+                lm, size, desc, _ = videos[(c, effort["frames"])]
                 try:
-                    rec = reconstruct(m, model, lm, size, effort["settings"], peers)
+                    rec = reconstruct(m, model, lm, size, effort["settings"], peers,
+                                      focal_px=desc.get("focal_px"))
                     cell, _ = evaluate(rec, scan)
                 except FitError as e:
                     per[c] = {"error": str(e)}

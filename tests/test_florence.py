@@ -178,6 +178,36 @@ def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
     assert cell["mean_mm"] == pytest.approx(np.mean(cell["per_scan_mm"]), abs=1e-3)
 
 
+def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
+    from evaluation.florence import reconstruct, video_landmarks
+
+    lm, size, desc, _ = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0)
+    assert desc["focal_px"] > 0
+    pinhole = reconstruct("ours", sfm, lm, size, focal_px=desc["focal_px"])
+    affine = reconstruct("ours", sfm, lm, size)
+    forced = reconstruct("ours", sfm, lm, size, {"camera": "affine"}, focal_px=desc["focal_px"])
+    assert pinhole.info["camera"] == "perspective" and affine.info["camera"] == "affine"
+    np.testing.assert_allclose(forced.vertices, affine.vertices)
+    assert not np.allclose(pinhole.vertices, affine.vertices)
+    # the landmark noise is estimated per video unless the settings give it
+    assert pinhole.info["landmark_std_px"] > 0
+    fixed = reconstruct("ours", sfm, lm, size, {"landmark_std_px": 2.0})
+    assert fixed.info["landmark_std_px"] == 2.0
+
+
+def test_landmark_definition_offsets(sfm, ict):
+    from evaluation.landmark_definitions import definition_offsets, group_rms, main
+    from evaluation.scans import model_scan as sample
+
+    # the model's own landmark vertices: nothing to measure; another model's: millimetres
+    own = group_rms(definition_offsets(sfm, model_scan(sfm, np.zeros(sfm.n_identity))))
+    other = group_rms(definition_offsets(sfm, sample(ict, 100)))
+    assert max(g["per_coordinate_mm"] for g in own.values()) < 0.05, own
+    assert "jaw" not in other and all(1.0 < g["per_coordinate_mm"] < 10.0 for g in other.values())
+    assert main(["--synthetic-scan", "ict", "--n-scans", "0"]) == 2
+    assert main(["--scan", "missing.obj"]) == 2
+
+
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "evaluation.florence", *map(str, args)],
                           cwd=REPO, capture_output=True, text=True, timeout=300)
