@@ -22,6 +22,9 @@ reports, per method and condition, the mean over the subjects::
 
     python -m evaluation.florence --synthetic-scan ict --n-scans 8 \
         --methods ours ours-independent eos mean-face --report reports/florence_ict.json
+
+or subjects of the fitted model itself with a landmark definition error added
+(``--synthetic-scan sfm --definition-noise 2.5``).
 """
 from __future__ import annotations
 
@@ -378,9 +381,11 @@ AVERAGED = ("mean_mm", "median_mm", "s_per_frame", "point_to_surface_mm", "scan_
 
 
 def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, seed: int = 0,
-                    scan_seed: int = 100, log=None, progress: bool = False, **kwargs):
+                    scan_seed: int = 100, log=None, progress: bool = False,
+                    definition_mm: float = 0.0, **kwargs):
     """:func:`run_protocol` on ``n_scans`` subjects sampled from ``scan_model``
-    (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...).
+    (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...,
+    ``definition_mm`` of landmark definition error added to their landmarks).
 
     Returns
     -------
@@ -394,7 +399,7 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
     per = {m: {c: [] for c in conditions} for m in methods}
     report = None
     for i in tqdm(range(n_scans), disable=not progress, desc="subjects", unit="scan"):
-        scan = model_scan(scan_model, scan_seed + i)
+        scan = model_scan(scan_model, scan_seed + i, definition_mm=definition_mm)
         rep, _ = run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)
         report = report or rep
         for m in methods:
@@ -417,7 +422,8 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
             report["methods"][m][c] = cell
     report["scan"] = {"model": scan_model.name, "n_scans": n_scans,
                       "seeds": [scan_seed + i for i in range(n_scans)],
-                      "landmarks": f"the {scan_model.name} landmark vertices",
+                      "landmarks": f"the {scan_model.name} landmark vertices"
+                      + (f" with {definition_mm:g} mm of definition error" if definition_mm else ""),
                       "std_mm": "standard deviation of the per-subject means"}
     return report
 
@@ -464,6 +470,9 @@ def _parser():
                    help="instead of --scan: subjects sampled from this model (e.g. ict), its "
                         "landmark vertices as scan landmarks")
     p.add_argument("--n-scans", type=int, default=8, help="subjects for --synthetic-scan")
+    p.add_argument("--definition-noise", type=float, default=0.0, metavar="MM",
+                   help="--synthetic-scan: landmark definition error added to the subjects' "
+                        "landmarks, mm per coordinate (jaw points: twice that along the jaw)")
     p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
     p.add_argument("--methods", nargs="+", default=["ours", "eos", "mean-face"])
     p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
@@ -532,6 +541,8 @@ def main(argv=None) -> int:
     model = load_model(args.model)
     if args.synthetic_scan:
         scan_model = load_model(args.synthetic_scan)
+        if not (np.isfinite(args.definition_noise) and args.definition_noise >= 0):
+            raise InputError(f"--definition-noise {args.definition_noise}: must be >= 0")
         for bad in ("detect", "frames_dir", "heatmaps"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
@@ -558,7 +569,8 @@ def main(argv=None) -> int:
         if args.synthetic_scan:
             errors = {}
             report = run_model_scans(scan_model, model, args.methods, args.conditions,
-                                     args.n_scans, args.seed, n_sampled=args.frames,
+                                     args.n_scans, args.seed, definition_mm=args.definition_noise,
+                                     n_sampled=args.frames,
                                      n_frames=args.video_frames, **common)
         else:
             report, errors = run_protocol(scan, model, args.methods, args.conditions,

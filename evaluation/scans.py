@@ -201,22 +201,28 @@ def load_scan(path, landmarks, units: str = "auto") -> Scan:
 
 
 def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float = 0.0,
-               segment: str = "face") -> Scan:
+               segment: str = "face", definition_mm: float = 0.0) -> Scan:
     """A "scan" sampled from a morphable model: a validation subject that is not a real scan.
 
     Sampled from a model other than the one being fitted (e.g. ICT FaceKit for SFM fits),
     its landmarks are that model's own iBUG-68 vertices, so they differ from the fitted
-    model's landmark definition the way a real scan's annotation does.
+    model's landmark definition the way a real scan's annotation does. Sampled from the fitted
+    model itself, ``definition_mm`` gives its landmarks such a difference: one fixed 3D offset
+    per landmark, N(0, definition_mm^2) per coordinate, and jaw points moved along the jaw line
+    by N(0, (2 definition_mm)^2) mm.
 
     Parameters
     ----------
-    model : MorphableModel with 68 defined ``landmark_ids``
+    model : MorphableModel whose landmarks are defined (all but at most 4; SFM lacks the inner
+        mouth corners): by ``landmark_ids``, or for the jaw by its contour (SFM: jaw points spaced along the jaw line from the height of the
+        outer eye corners to the chin, :func:`morphable.fitting.correspondences.expected_jaw_points`)
     rng : numpy Generator or int seed
     identity_std : standard deviation of the identity coefficients (1 = the model's spread)
     expression_std : blendshape weights ``|N(0, expression_std)|`` (clipped to 1), or PCA
         coefficients ``N(0, expression_std)``; 0 = neutral
     segment : the model segment kept as the scan surface (the whole mesh when the model has
         no such segment); the landmarks need not lie on it
+    definition_mm : landmark definition error added to the model's own landmarks, mm
 
     Returns
     -------
@@ -239,9 +245,15 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
             beta = np.clip(np.abs(beta), 0.0, 1.0)
     vertices = model.vertices(alpha, beta)
     landmarks = model.landmark_positions(alpha, beta)
-    if np.isnan(landmarks).any():
-        raise InputError(f"model {model.name}: some iBUG-68 landmarks are undefined; a model "
-                         f"scan needs all 68")
+    jaw_arc = rng.normal(0.0, 2.0 * definition_mm, 68) if definition_mm > 0 else np.zeros(68)
+    _jaw_on_contour(model, vertices, landmarks, jaw_arc)
+    defined = np.isfinite(landmarks).all(1)
+    if not defined[:17].all() or defined.sum() < 64:
+        raise InputError(f"model {model.name}: {int((~defined).sum())} iBUG-68 landmarks are "
+                         f"undefined; a model scan needs the jaw and at least 64 in all")
+    if definition_mm > 0:
+        inner = np.r_[8, np.arange(17, 68)]
+        landmarks[inner] += rng.normal(0.0, definition_mm, (len(inner), 3))
     triangles = model.triangles
     if segment in (model.segments or {}):
         keep = np.zeros(model.n_vertices, dtype=bool)
@@ -251,5 +263,26 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     ids = np.unique(triangles)
     remap = np.full(model.n_vertices, -1, dtype=np.int64)
     remap[ids] = np.arange(len(ids))
+    source = f"{model.name} sample (seed {seed})"
+    if definition_mm > 0:
+        source += f", landmark definition error {definition_mm:g} mm"
     return Scan(vertices=vertices[ids], triangles=remap[triangles], landmarks=landmarks,
-                units="mm", source=f"{model.name} sample (seed {seed})")
+                units="mm", source=source)
+
+
+def _jaw_on_contour(model, vertices, landmarks, arc_offset):
+    """Fill undefined jaw landmarks (in place) from the model's jaw contour: evenly spaced
+    along the subject's jaw line as the mean face expects them, moved by ``arc_offset`` mm."""
+    if not np.isnan(landmarks[:17]).any():
+        return
+    from morphable.fitting.correspondences import expected_jaw_points, landmark_bank
+
+    bank = landmark_bank(model)
+    for lms, chain in bank.polylines:
+        ids = bank.vertex_ids[chain]
+        _, at, mean_arc = expected_jaw_points(model, lms, ids)
+        P = vertices[ids]
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+        at = np.clip(at / mean_arc[-1] * arc[-1] + arc_offset[lms], 0.0, arc[-1])
+        fill = np.isnan(landmarks[lms]).any(1)
+        landmarks[lms[fill]] = np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1)[fill]

@@ -164,6 +164,20 @@ def test_model_scan_from_another_model(ict, sfm):
     assert 2.0 < np.nanmean(err[17:]) < 8.0
 
 
+def test_model_scan_with_definition_error(sfm):
+    from evaluation.scans import model_scan as sample
+
+    exact, noisy = sample(sfm, 3), sample(sfm, 3, definition_mm=2.5)
+    np.testing.assert_array_equal(exact.vertices, noisy.vertices)
+    # the SFM has no jaw vertices: jaw points on its jaw line, between its (5-8 mm apart) vertices
+    d = np.linalg.norm(exact.vertices[:, None] - exact.landmarks[None, :17], axis=-1).min(0)
+    assert np.isfinite(exact.landmarks[:17]).all() and d.max() < 6.0
+    inner = np.isfinite(exact.landmarks).all(1) & (np.arange(68) >= 17)
+    moved = np.linalg.norm(noisy.landmarks[inner] - exact.landmarks[inner], axis=1)
+    assert 1.8 < np.sqrt((moved ** 2).mean() / 3) < 3.5
+    assert "definition error 2.5 mm" in noisy.source
+
+
 def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
     pytest.importorskip("eos")
     from evaluation.florence import run_model_scans

@@ -1,13 +1,13 @@
 """Synthetic 2D landmarks of a model face, placed the way a 68-point detector places them
 (for tests, benchmarks and the evaluation of fitting).
 
-Fixed landmarks are the projections of their vertices. Jaw points lie on the jaw line,
-spaced evenly from the height of the outer eye corners down to the chin and generally
-between vertices; where the jaw line faces away from the camera (normals of the actual
-mesh) a point marches along its horizontal line of vertices to the first one that faces
-the camera — the cheek's silhouette, interpolated at the zero of the normal's z — as in
-the fitting's correspondence rules
-(:mod:`morphable.fitting.correspondences`), but with exact normals and interpolation.
+Fixed landmarks are the projections of their vertices. Jaw points lie on the face's outline
+at fixed heights: on the jaw line, spaced evenly from the height of the outer eye corners
+down to the chin and generally between vertices; where the jaw line faces away from the
+camera (normals of the actual mesh) a point marches along its horizontal line of vertices to
+the first one that faces the camera — the cheek's silhouette, interpolated at the zero of
+the normal's z. The fit (:mod:`morphable.fitting.correspondences`) takes them as points of
+the outline at any height.
 """
 from __future__ import annotations
 
