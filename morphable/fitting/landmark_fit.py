@@ -280,7 +280,8 @@ def _slide(pb: _Problem, st: _State):
     if not bank.polylines:
         return
     if pb.perspective:
-        # a pinhole camera sees the outline where the surface turns away from its centre
+        # a pinhole camera sees the outline where the surface turns away from its centre (the
+        # direction taken to each line's start on the mean shape: a few mm do not change it)
         centre = -np.einsum("nji,nj->ni", st.R, st.t)
         view = []
         for lines in bank.outlines:
@@ -460,7 +461,7 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
     n_rho = 0 if pb.perspective else 1
     Pf = 3 + n_t + n_rho + E
     mu = np.full(G, 1e-3)
-    gidx = np.zeros(N, int) if pb.shared else np.arange(N)
+    gidx = _group_index(pb)
     iters = 0
     # a group that has converged stops moving, so that fitting frames together or alone
     # gives the same result
