@@ -3,17 +3,17 @@
 Inner landmarks map to fixed vertices (``model.landmark_ids``). Jaw landmarks lie on the
 face's visible *outline*, the way a 68-point detector or annotator places them, at heights
 that vary from annotator to annotator and from view to view. Each side of the face has a
-stack of horizontal *outline lines* of vertices, one every couple of millimetres from the
-height of the outer eye corner down to the chin; a line runs from the jaw line (the model's
+stack of horizontal *outline lines* of vertices, one every ``OUTLINE_STEP_MM`` along the jaw
+line from 10 mm above the height of the outer eye corners down to the chin; a line runs from the jaw line (the model's
 ``contour_right``/``contour_left``, SFM; or the chain of its jaw landmark vertices, ICT)
 inwards to the midline. In every frame each line contributes one outline point: its jaw-line
 vertex where that faces the camera, else where the line crosses the cheek's silhouette
 (interpolated between the two vertices around the zero of the normal's camera component, as
 in 3DDFA's landmark marching; the mean shape's normals, so the full mesh is never
 evaluated). A jaw landmark then corresponds to the outline point nearest to it in the image,
-and only its distance *across* the outline counts: its target is moved along the outline to
-the chosen point (:func:`slide_contours`). This is eos' occluding-contour idea with a
-continuous outline, on both sides of the face.
+and only its distance *across* the outline counts: :func:`slide_contours` returns the
+outline's direction there, and the fit drops the residual's component along it. This is eos'
+occluding-contour idea with a continuous outline, on both sides of the face.
 
 A correspondence is ``X = (1 - w) * X[a] + w * X[b]`` over two rows of a :class:`LandmarkBank`
 (``a == b``, ``w == 0`` for fixed points), so sliding between vertices is continuous.
