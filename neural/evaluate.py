@@ -209,14 +209,6 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
     return report
 
 
-def _stored_metrics(path):
-    """The validation metrics a checkpoint of ours stores; None for other files."""
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)["meta"]["metrics"]
-    except Exception:
-        return None
-
-
 @one_line_errors("neural.evaluate")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m neural.evaluate", description=__doc__.splitlines()[0])
@@ -250,8 +242,8 @@ def main(argv=None) -> int:
     grid = Path(args.grid) if args.grid else out.with_suffix(".png")
     report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
                       inception=inception)
-    aux_dir = Path(args.aux_dir or Path(__file__).parent / "weights")
-    report["aux_validation"] = {n: _stored_metrics(aux_dir / f"aux_{n}.pt") for n in NAMES}
+    # the validation metrics our checkpoints store (None for other networks)
+    report["aux_validation"] = {n: getattr(aux[n], "meta", {}).get("metrics") for n in NAMES}
     report["generators"] = {"gar": str(args.generator),
                             "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None}
     from morphable.io.atomic import atomic_path

@@ -76,7 +76,8 @@ def test_report_end_to_end(tmp_path, data_dir):
     G = Generator(cfg)
     torch.save({"config": cfg.to_dict(), "step": 0, "G": G.state_dict()}, tmp_path / "g.pt")
     for name, cls in NETS.items():
-        save_aux(cls(width=4), name, tmp_path / f"aux_{name}.pt", width=4)
+        save_aux(cls(width=4), name, tmp_path / f"aux_{name}.pt", width=4,
+                 metrics={"stand_in": float(ord(name))})
     # a stand-in for a user's Inception TorchScript file: (B, 3, 299, 299) -> (B, 8, 1, 1)
     incep = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 5, stride=4), torch.nn.AdaptiveAvgPool2d(1))
     torch.jit.script(incep).save(str(tmp_path / "inception.ts"))
@@ -92,6 +93,8 @@ def test_report_end_to_end(tmp_path, data_dir):
     for key in ("normal_consistency_deg", "fid_aux", "fid_inception"):  # same weights and seeds
         assert r[key]["gar"] == r[key]["gar_no_norm_cycle"] != r[key]["classical"]
     assert (tmp_path / "gar.png").is_file()
+    # each aux network's stored validation metrics, carried by the loaded network
+    assert r["aux_validation"] == {n: {"stand_in": float(ord(n))} for n in NETS}
     assert main(["--report", str(report), "--generator", str(tmp_path / "g.pt"),
                  "--inception", str(tmp_path / "g.pt")]) == 2
     assert main(["--report", str(report), "--generator", str(tmp_path / "none.pt")]) == 2

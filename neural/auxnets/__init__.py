@@ -95,6 +95,7 @@ def _from_file(name: str, path: Path) -> nn.Module:
         except RuntimeError as e:
             first = str(e).strip().splitlines()[0]
             raise InputError(f"{path}: weights do not fit aux network {name!r} ({first})") from None
+        net.meta = ckpt.get("meta", {})
         return net
     try:
         return torch.jit.load(str(path), map_location="cpu")
@@ -137,6 +138,9 @@ def load_aux(name: str, weights=None, pretrained: bool = True, width: int = 16,
         Unknown name, missing or unreadable weights, or a network whose outputs do not
         match the interface.
 
+    A network read from a checkpoint of :func:`save_aux` carries its stored ``meta`` (training
+    settings, validation metrics) as ``net.meta``.
+
     Examples
     --------
     >>> net = load_aux("P", pretrained=False)
@@ -158,7 +162,10 @@ def load_aux(name: str, weights=None, pretrained: bool = True, width: int = 16,
                              f"with `python -m neural.auxnets.train` or pass weights=")
         net, where = _from_file(name, path), str(path)
     if name == "L" and not hasattr(net, "landmarks"):
+        meta = getattr(net, "meta", None)
         net = _WithLandmarks(net)
+        if meta is not None:
+            net.meta = meta
     net = net.to(device).eval().requires_grad_(False)
     _check_interface(name, net, where, resolution)
     return net
