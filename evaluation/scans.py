@@ -214,8 +214,9 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     Parameters
     ----------
     model : MorphableModel whose landmarks are defined (all but at most 4; SFM lacks the inner
-        mouth corners): by ``landmark_ids``, or for the jaw by its contour (SFM: jaw points spaced along the jaw line from the height of the
-        outer eye corners to the chin, :func:`morphable.fitting.correspondences.expected_jaw_points`)
+        mouth corners): by ``landmark_ids``, or for the jaw by its contour (SFM: jaw points
+        spaced along the jaw line from the height of the outer eye corners to the chin,
+        :func:`morphable.fitting.correspondences.expected_jaw_points`)
     rng : numpy Generator or int seed
     identity_std : standard deviation of the identity coefficients (1 = the model's spread)
     expression_std : blendshape weights ``|N(0, expression_std)|`` (clipped to 1), or PCA
