@@ -38,7 +38,8 @@ import numpy as np  # noqa: E402
 from morphable import load_model
 from morphable.camera import Camera, euler_to_matrix
 from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
-from morphable.fitting.correspondences import Correspondences, outline_points, slide_contours
+from morphable.fitting.correspondences import (Correspondences, across_outline, outline_points,
+                                               slide_contours)
 from morphable.io.atomic import atomic_path
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -133,8 +134,7 @@ def landmark_rmse(model, rotation, project, verts, landmarks):
     a, b, w = corr.a[0], corr.b[0], corr.w[0]
     ok = given & (a >= 0)
     uv = (1 - w[:, None]) * uv_rows[np.maximum(a, 0)] + w[:, None] * uv_rows[np.maximum(b, 0)]
-    r = uv - targets
-    d2 = ((r - tangents * (r * tangents).sum(1, keepdims=True)) ** 2).sum(1)
+    d2 = (across_outline(uv - targets, tangents) ** 2).sum(1)
     inner = ok & (np.arange(68) >= 17)
     return float(np.sqrt(d2[ok].mean())), float(np.sqrt(d2[inner].mean()))
 

@@ -48,10 +48,10 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
     (closer than ``max_distance_mm``), and a ridge solve of the point-to-plane equations
     ``n . (mean + A alpha - p) = 0`` with ``prior_weight |alpha|^2`` (mm^2 units).
     """
-    import trimesh
     from scipy.spatial import cKDTree
 
     from morphable.metrics import align_landmarks
+    from morphable.normals import vertex_normals
 
     ids = np.asarray(model.landmark_ids)
     ok = (ids >= 0) & np.isfinite(scan.landmarks).all(1)
@@ -59,10 +59,10 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
         raise InputError(f"{scan.source}: fewer than 4 landmarks shared with model {model.name}")
     A = np.asarray(model.identity_basis, dtype=np.float64)          # (K, V, 3)
     mean = np.asarray(model.mean, dtype=np.float64)
-    normals = trimesh.Trimesh(scan.vertices, scan.triangles, process=False).vertex_normals
+    normals = vertex_normals(scan.vertices, scan.triangles, weighting="angle")
     alpha = np.zeros(model.n_identity)
     for _ in range(iterations):
-        v = mean + np.einsum("kvi,k->vi", A, alpha)
+        v = model.vertices(identity=alpha)
         T = align_landmarks(scan.landmarks[ok], v[ids[ok]])
         S, Sn = T.apply(scan.vertices), normals @ T.rotation.T
         sel = np.flatnonzero(np.linalg.norm(v - v[ids[30]], axis=1) < radius_mm)

@@ -276,14 +276,12 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
     along the subject's jaw line as the mean face expects them, moved by ``arc_offset`` mm."""
     if not np.isnan(landmarks[:17]).any():
         return
-    from morphable.fitting.correspondences import expected_jaw_points, landmark_bank
+    from morphable.fitting.correspondences import (interpolate_arc, jaw_arc_positions,
+                                                   landmark_bank)
 
     bank = landmark_bank(model)
     for lms, chain in bank.polylines:
-        ids = bank.vertex_ids[chain]
-        _, at, mean_arc = expected_jaw_points(model, lms, ids)
-        P = vertices[ids]
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
-        at = np.clip(at / mean_arc[-1] * arc[-1] + arc_offset[lms], 0.0, arc[-1])
+        P, arc, at = jaw_arc_positions(model, lms, bank.vertex_ids[chain], vertices)
+        at = np.clip(at + arc_offset[lms], 0.0, arc[-1])
         fill = np.isnan(landmarks[lms]).any(1)
-        landmarks[lms[fill]] = np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1)[fill]
+        landmarks[lms[fill]] = interpolate_arc(P, arc, at)[fill]

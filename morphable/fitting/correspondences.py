@@ -27,7 +27,7 @@ import numpy as np
 
 __all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours", "march_lines",
            "march_silhouette", "outline_lines", "outline_points", "expected_jaw_points",
-           "OUTLINE_STEP_MM"]
+           "jaw_arc_positions", "interpolate_arc", "across_outline", "OUTLINE_STEP_MM"]
 
 _RIGHT_JAW = np.arange(0, 8)
 _LEFT_JAW = np.arange(9, 17)
@@ -101,7 +101,7 @@ def _chain_arc(model, chain_ids):
     where the chain passes the height of the outer eye corners (0 if it starts lower), mm."""
     mean = np.asarray(model.mean, dtype=np.float64)
     P = mean[chain_ids]
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+    arc = _arc_lengths(P)
     start = 0.0
     corners = np.asarray(model.landmark_ids)[[36, 45]]
     if (corners >= 0).all():
@@ -114,8 +114,24 @@ def _chain_arc(model, chain_ids):
     return P, arc, start
 
 
-def _at(P, arc, at):
+def _arc_lengths(P):
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+
+
+def interpolate_arc(P, arc, at):
+    """Points (J, 3) at arc positions ``at`` (J,) of a polyline ``P`` (C, 3) whose cumulative
+    arc lengths are ``arc`` (C,), mm."""
     return np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1)
+
+
+def jaw_arc_positions(model, lms, chain_ids, vertices):
+    """A face's jaw line and where its sliding landmarks sit on it: the chain's points (C, 3)
+    in ``vertices``, their cumulative arc lengths (C,) and the landmarks' arc positions (J,),
+    mm — :func:`expected_jaw_points` rescaled to this face's jaw line."""
+    _, at, mean_arc = expected_jaw_points(model, lms, chain_ids)
+    P = np.asarray(vertices, dtype=np.float64)[chain_ids]
+    arc = _arc_lengths(P)
+    return P, arc, at / mean_arc[-1] * arc[-1]
 
 
 def expected_jaw_points(model, lms, chain_ids):
@@ -128,7 +144,7 @@ def expected_jaw_points(model, lms, chain_ids):
     P, arc, start = _chain_arc(model, chain_ids)
     frac = (lms if lms[0] < 8 else 16 - lms) / 8.0
     at = start + frac * (arc[-1] - start)
-    return _at(P, arc, at), at, arc
+    return interpolate_arc(P, arc, at), at, arc
 
 
 def _horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
@@ -171,7 +187,7 @@ def outline_lines(model, chain_ids, step_mm: float = OUTLINE_STEP_MM) -> np.ndar
     the chin vertex alone)."""
     P, arc, start = _chain_arc(model, chain_ids)
     at = np.arange(max(start - 10.0, 0.0), arc[-1] - 0.5 * step_mm, step_mm)
-    lines = _horizontal_lines(model, _at(P, arc, at), chain_ids) + [chain_ids[-1:]]
+    lines = _horizontal_lines(model, interpolate_arc(P, arc, at), chain_ids) + [chain_ids[-1:]]
     out = np.full((len(lines), max(len(v) for v in lines)), -1, dtype=np.int64)
     for i, v in enumerate(lines):
         out[i, :len(v)] = v
@@ -336,6 +352,12 @@ def outline_points(bank: LandmarkBank, view) -> list:
         v = view[i] if isinstance(view, list) else view
         out.append(march_silhouette(lines, bank.normals[np.maximum(lines, 0)], v))
     return out
+
+
+def across_outline(residuals, tangents):
+    """Residuals (..., 2) without their component along the outline: ``tangents`` (..., 2) are
+    unit for jaw points (from :func:`slide_contours`) and 0 for the others."""
+    return residuals - tangents * (residuals * tangents).sum(-1, keepdims=True)
 
 
 def slide_contours(bank: LandmarkBank, corr: Correspondences, outlines, projected, landmarks,

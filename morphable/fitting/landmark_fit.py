@@ -52,7 +52,8 @@ import numpy as np
 
 from ..errors import FitError, InputError
 from ..landmarks import as_landmarks
-from .correspondences import Correspondences, landmark_bank, outline_points, slide_contours
+from .correspondences import (Correspondences, across_outline, landmark_bank, outline_points,
+                              slide_contours)
 from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
@@ -356,13 +357,7 @@ def _residuals(pb: _Problem, st: _State, jacobian: bool):
     points: across the outline only)."""
     X = _points(pb, st)
     uv, Xc, J, depth = _project_state(pb, st, X, jacobian)
-    return X, uv, Xc, J, depth, _across(pb.tangent, uv - pb.y)
-
-
-def _across(tangent, r):
-    """Residuals (n, 68, 2) without their component along the outline (``tangent`` (n, 68, 2),
-    unit for jaw points, 0 for the others)."""
-    return r - tangent * (r * tangent).sum(-1, keepdims=True)
+    return X, uv, Xc, J, depth, across_outline(uv - pb.y, pb.tangent)
 
 
 def _across_rows(pb: _Problem, J):
@@ -526,7 +521,7 @@ def _subset_cost(pb, st, W, sel):
     if pb.E:
         X = X + _combine(B, st.beta[sel])
     uv, _, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel], pb.perspective, False)
-    r = _across(pb.tangent[sel], uv - pb.y[sel])
+    r = across_outline(uv - pb.y[sel], pb.tangent[sel])
     w = W[sel]
     c = (w * (r * r).sum(-1)).sum(1)
     if pb.perspective:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .correspondences import expected_jaw_points, landmark_bank, march_lines, march_silhouette
+from .correspondences import jaw_arc_positions, landmark_bank, march_lines, march_silhouette
 
 __all__ = ["simulate_landmarks"]
 
@@ -51,10 +51,8 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     bank = landmark_bank(model)
     for side, chain in bank.polylines:
         chain_ids = bank.vertex_ids[chain]
-        _, at, mean_arc = expected_jaw_points(model, side, chain_ids)
-        P, Nz = verts[chain_ids], normals[chain_ids, 2]
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
-        at = at / mean_arc[-1] * arc[-1]
+        P, arc, at = jaw_arc_positions(model, side, chain_ids, verts)
+        Nz = normals[chain_ids, 2]
         view = np.array([[0.0, 0.0, 1.0]])         # normals are already in the camera frame
         for j, a, line in zip(side, at, march_lines(model, side, chain_ids)):
             p = np.array([np.interp(a, arc, P[:, k]) for k in range(3)])
