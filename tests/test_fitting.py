@@ -162,7 +162,7 @@ def test_independent_frames_average_identity(sfm, face):
     np.testing.assert_allclose(res.frame_identity[1], alone.identity, atol=1e-6)
 
 
-def definition_error_frames(model, alpha, rng, n=10, offset_mm=4.0):
+def definition_error_frames(model, alpha, rng, n=10, offset_mm=4.0, kind="affine"):
     """Landmarks of ``n`` views whose inner points carry one fixed 3D offset each (an
     annotation that defines them differently from the model), plus 1 px noise."""
     verts = model.vertices(alpha)
@@ -171,7 +171,8 @@ def definition_error_frames(model, alpha, rng, n=10, offset_mm=4.0):
     off = rng.normal(0.0, offset_mm, (68, 3))
     frames = []
     for yaw in np.linspace(-30, 30, n):
-        cam = Camera.looking_at_face(image_size=(512, 512), yaw=yaw, pitch=5 * np.sin(yaw))
+        cam = Camera.looking_at_face(image_size=(512, 512), yaw=yaw, pitch=5 * np.sin(yaw),
+                                     kind=kind)
         lm = simulate_landmarks(model, cam, vertices=verts)
         lm[inner] = cam.project(verts[ids[inner]] + off[inner])
         frames.append(lm + rng.normal(0.0, 1.0, lm.shape))
@@ -190,6 +191,49 @@ def test_shared_definition_error_is_not_fitted_into_the_identity(sfm):
     # 10 frames as 10 independent looks at the same offsets bend the identity; with the
     # offsets modelled, more frames help instead of hurting
     assert many < 0.75 * naive and many < one, (naive, one, many)
+
+
+
+@pytest.mark.parametrize("kind", ["affine", "perspective"])
+def test_shared_offsets_do_not_shrink_the_face(sfm, kind):
+    # landmarks fix a face's shape, not its size (the camera's distance trades against it):
+    # offsets of a fixed size in mm would be cheaper on a smaller face, so they grow and
+    # shrink with it, and a shared fit keeps the size that frames fitted alone find
+    def size(v):
+        return np.sqrt(((v - v.mean(0)) ** 2).sum(1).mean())
+
+    focal = Camera.looking_at_face(kind="perspective").focal
+    rng = np.random.default_rng(5)
+    ratios = []
+    for _ in range(3):
+        lms, _ = definition_error_frames(sfm, rng.standard_normal(sfm.n_identity), rng,
+                                         offset_mm=2.5, kind=kind)
+        shared, alone = (fit_landmarks(sfm, lms, (512, 512), camera=kind, focal_px=focal,
+                                       definition_std_mm=2.5, shared_identity=s)
+                         for s in (True, False))
+        ratios.append(size(shared.neutral_vertices()) / size(alone.neutral_vertices()))
+    assert abs(np.mean(ratios) - 1.0) < 0.04, ratios
+
+def test_shared_rows_are_the_derivatives_of_the_points(sfm, face):
+    # the offsets scale with the face: the identity's derivatives gain the offsets' growth
+    from morphable.fitting import landmark_fit as lf
+    from morphable.landmarks import as_landmarks
+
+    y, given = as_landmarks(np.stack([synth(sfm, yaw=a, identity=face[0])[0] for a in (-20, 25)]))
+    bank = lf.landmark_bank(sfm)
+    pb = lf._Problem(bank, y, given & bank.usable, np.full((2, 2), 255.5),
+                     np.full(2, 512.0), False, sfm.n_identity, sfm.n_expression, True, True,
+                     1.0, 1.0, 1.0, 1.5, None, 1.345, 2.0)
+    st = lf._linear_stage(pb, 1)
+    st.alpha = st.alpha + np.random.default_rng(0).normal(0.0, 0.5, st.alpha.shape)
+    rows = lf._shared_rows(pb, st)                                  # (N, 3, 68, K)
+    eps = 1e-6
+    for k in (0, 1, sfm.n_identity, pb.K - 1):
+        up, down = st.copy(), st.copy()
+        up.alpha[:, k] += eps
+        down.alpha[:, k] -= eps
+        d = (lf._points(pb, up) - lf._points(pb, down)) / (2 * eps)  # (N, 68, 3)
+        np.testing.assert_allclose(rows[..., k].transpose(0, 2, 1), d, atol=1e-6)
 
 
 def test_definition_error_of_one_frame_is_extra_variance(sfm, face):
