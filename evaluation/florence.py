@@ -14,6 +14,9 @@ Command::
 
 prints a table (method x condition, mean ± std of the point-to-plane error in mm, seconds per
 frame) and writes the JSON report plus the per-vertex errors (``.npz`` beside the report).
+One synthetic video per condition is one draw of a head-pose trajectory and of landmark noise;
+``--n-videos 5`` runs five draws (seeds ``--seed`` to ``--seed + 4``) and gives the mean and
+standard deviation over them.
 
 A validation set that is not a real scan (for choosing settings without touching the held-out
 scans): ``--synthetic-scan ict --n-scans 8`` samples subjects from another model
@@ -46,7 +49,7 @@ from .scans import UNITS, Scan, load_scan, model_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
-           "run_model_scans", "format_table", "save_heatmap", "main"]
+           "run_model_scans", "run_videos", "format_table", "save_heatmap", "main"]
 
 MIN_LANDMARKS = 10
 """Frames with fewer landmarks are dropped before reconstruction."""
@@ -396,35 +399,73 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
     """
     if n_scans < 1:
         raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
-    per = {m: {c: [] for c in conditions} for m in methods}
-    report = None
-    for i in tqdm(range(n_scans), disable=not progress, desc="subjects", unit="scan"):
-        scan = model_scan(scan_model, scan_seed + i, definition_mm=definition_mm)
-        rep, _ = run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)
-        report = report or rep
-        for m in methods:
-            for c in conditions:
-                per[m][c].append(rep["methods"][m][c])
-        if log:
-            log(f"subject {i + 1}/{n_scans}: " + ", ".join(
-                f"{m} {np.mean([per[m][c][-1].get('mean_mm', np.nan) for c in conditions]):.3f}"
-                for m in methods))
-    for m in methods:
-        for c in conditions:
-            ok = [cell for cell in per[m][c] if "mean_mm" in cell]
-            if not ok:
-                report["methods"][m][c] = {"error": per[m][c][0]["error"]}
-                continue
-            cell = {k: float(np.mean([x[k] for x in ok])) for k in AVERAGED}
-            cell["std_mm"] = float(np.std([x["mean_mm"] for x in ok]))
-            cell["per_scan_mm"] = [round(x["mean_mm"], 4) for x in ok]
-            cell["n_failed"] = len(per[m][c]) - len(ok)
-            report["methods"][m][c] = cell
+    scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm)
+             for i in range(n_scans))
+    runs = (run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)[0]
+            for scan in scans)
+    report = _average_runs(runs, n_scans, "per_scan_mm", "subject", log, progress)
     report["scan"] = {"model": scan_model.name, "n_scans": n_scans,
                       "seeds": [scan_seed + i for i in range(n_scans)],
                       "landmarks": f"the {scan_model.name} landmark vertices"
                       + (f" with {definition_mm:g} mm of definition error" if definition_mm else ""),
                       "std_mm": "standard deviation of the per-subject means"}
+    return report
+
+
+def run_videos(scan: Scan, model, methods, conditions, n_videos: int = 5, seed: int = 0,
+               log=None, progress: bool = False, **kwargs):
+    """:func:`run_protocol` on ``n_videos`` draws of each condition's synthetic video (seeds
+    ``seed``, ``seed + 1``...: other head-pose trajectories and landmark noise), to show how
+    much one draw decides.
+
+    Returns
+    -------
+    report : the :func:`run_protocol` shape; each cell holds the means over the videos,
+        ``std_mm`` the standard deviation of ``mean_mm`` across them, ``per_video_mm`` the list
+        and ``n_failed``
+    errors : the per-vertex errors of the first draw (see :func:`run_protocol`)
+    """
+    if n_videos < 1:
+        raise InputError(f"--n-videos: need at least 1 video, got {n_videos}")
+    first = {}
+
+    def runs():
+        for i in range(n_videos):
+            rep, errors = run_protocol(scan, model, methods, conditions, seed=seed + i, **kwargs)
+            first.setdefault("errors", errors)
+            yield rep
+
+    report = _average_runs(runs(), n_videos, "per_video_mm", "video", log, progress)
+    report["videos_drawn"] = {"n_videos": n_videos, "seeds": [seed + i for i in range(n_videos)],
+                              "std_mm": "standard deviation of the per-video means"}
+    return report, first["errors"]
+
+
+def _average_runs(reports, n: int, key: str, unit: str, log=None, progress: bool = False) -> dict:
+    """Average the cells of ``n`` :func:`run_protocol` reports (an iterable, run lazily): the
+    metrics in ``AVERAGED`` are means over the runs that succeeded, ``std_mm`` the standard
+    deviation of their ``mean_mm``, ``key`` the list of them, ``n_failed`` the others."""
+    per, report = {}, None
+    for i, rep in enumerate(tqdm(reports, total=n, disable=not progress, desc=unit + "s", unit=unit)):
+        report = report or rep
+        for m, cells in rep["methods"].items():
+            for c, cell in cells.items():
+                per.setdefault(m, {}).setdefault(c, []).append(cell)
+        if log:
+            log(f"{unit} {i + 1}/{n}: " + ", ".join(
+                f"{m} {np.mean([cs[-1].get('mean_mm', np.nan) for cs in per[m].values()]):.3f}"
+                for m in per))
+    for m, cells in per.items():
+        for c, runs in cells.items():
+            ok = [cell for cell in runs if "mean_mm" in cell]
+            if not ok:
+                report["methods"][m][c] = {"error": runs[0]["error"]}
+                continue
+            cell = {k: float(np.mean([x[k] for x in ok])) for k in AVERAGED}
+            cell["std_mm"] = float(np.std([x["mean_mm"] for x in ok]))
+            cell[key] = [round(x["mean_mm"], 4) for x in ok]
+            cell["n_failed"] = len(runs) - len(ok)
+            report["methods"][m][c] = cell
     return report
 
 
@@ -435,7 +476,8 @@ def format_table(report: dict) -> str:
     conds = list(next(iter(report["methods"].values()), {}))
     w = 16
     head = f"{'method':<18}" + "".join(f"{c:>{w}}" for c in conds) + f"{'s/frame':>10}"
-    over = ("subjects" if "n_scans" in report.get("scan", {}) else "vertices")
+    over = ("subjects" if "n_scans" in report.get("scan", {})
+            else "videos" if "videos_drawn" in report else "vertices")
     lines = [f"point-to-plane error, mm (mean ± std over {over}); {report['settings']['frames']} "
              f"frames per video, model {report['settings']['model']}", head, "-" * len(head)]
     for m in methods:
@@ -480,6 +522,9 @@ def _parser():
     p.add_argument("--video-frames", type=int, default=30, help="length of a synthetic video")
     p.add_argument("--model", default="sfm", help="model for ours/mean-face (sfm, ict or a path)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-videos", type=int, default=1,
+                   help="--scan: draws of each synthetic video (seeds --seed, --seed + 1...); "
+                        "the table then gives mean ± std over the draws")
     p.add_argument("--detect", action="store_true",
                    help="landmarks from dlib on rendered frames instead of projected scan landmarks")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
@@ -546,6 +591,8 @@ def main(argv=None) -> int:
         for bad in ("detect", "frames_dir", "heatmaps"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
+        if args.n_videos != 1:
+            raise InputError("--n-videos applies to --scan (--synthetic-scan: one video per subject)")
     else:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
     ours = {k: v for k, v in (("n_iterations", args.iterations),
@@ -572,6 +619,12 @@ def main(argv=None) -> int:
                                      args.n_scans, args.seed, definition_mm=args.definition_noise,
                                      n_sampled=args.frames,
                                      n_frames=args.video_frames, **common)
+        elif args.n_videos != 1:
+            if args.frames_dir:
+                raise InputError("--n-videos draws synthetic videos; --frames-dir has one")
+            report, errors = run_videos(scan, model, args.methods, args.conditions,
+                                        args.n_videos, args.seed, n_sampled=args.frames,
+                                        n_frames=args.video_frames, detect=args.detect, **common)
         else:
             report, errors = run_protocol(scan, model, args.methods, args.conditions,
                                           args.frames, args.video_frames, args.seed,

@@ -286,6 +286,29 @@ def test_command_on_synthetic_subjects(tmp_path):
     assert r.returncode == 2 and "either --scan" in r.stderr and not (tmp_path / "s.json").exists()
 
 
+
+def test_command_on_several_video_draws(tmp_path, james_paths):
+    # one video per condition decides a lot: --n-videos draws several (other trajectories
+    # and noise) and reports mean and spread over them
+    report = tmp_path / "r.json"
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--n-videos", "2",
+                "--methods", "ours", "mean-face", "--conditions", "outdoor", "--frames", "2",
+                "--video-frames", "4", "--report", report, "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "std over videos" in r.stdout
+    rep = json.loads(report.read_text())
+    assert rep["videos_drawn"]["seeds"] == [0, 1]
+    ours, mean = rep["methods"]["ours"]["outdoor"], rep["methods"]["mean-face"]["outdoor"]
+    assert len(ours["per_video_mm"]) == 2 and ours["per_video_mm"][0] != ours["per_video_mm"][1]
+    assert ours["mean_mm"] == pytest.approx(np.mean(ours["per_video_mm"]), abs=1e-3)
+    assert mean["std_mm"] == pytest.approx(0.0, abs=1e-9)       # no fit: every draw the same
+    assert (tmp_path / "r_errors.npz").exists()
+    r = run_cli("--synthetic-scan", "ict", "--n-videos", "2", "--report", tmp_path / "s.json")
+    assert r.returncode == 2 and "--n-videos" in r.stderr and not (tmp_path / "s.json").exists()
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--n-videos", "0",
+                "--report", tmp_path / "z.json")
+    assert r.returncode == 2 and "--n-videos" in r.stderr and not (tmp_path / "z.json").exists()
+
 def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
     from evaluation import report
 
