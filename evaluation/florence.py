@@ -110,6 +110,18 @@ def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruc
                           model.n_vertices)
 
 
+def _video_fit_options(effort: dict, focal_px) -> dict:
+    """Landmark-fit settings for a video's frames: a pinhole camera with the video's focal
+    length when it is known (unless ``effort["camera"]`` says otherwise), and the landmark
+    noise estimated (a video's is unknown: detector, resolution, blur) unless set."""
+    out = dict(effort)
+    out.setdefault("camera", "perspective" if focal_px is not None else "affine")
+    if out["camera"] == "perspective" and focal_px is not None:
+        out.setdefault("focal_px", focal_px)
+    out.setdefault("landmark_std_px", "auto")
+    return out
+
+
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
                 peers: dict | None = None, images=None, focal_px=None) -> Reconstruction:
     """Reconstruct one face from the landmarks of several frames.
@@ -123,12 +135,14 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     effort : method settings: ``n_iterations``/``n_identity`` for ours, ``num_iterations``
         for eos, ``steps`` (refinement steps, default 100) for gar
     peers : cache of loaded peer fitters (reused between calls)
-    images : (N, H, W, 3) the frames themselves (gar: a per-frame landmark fit refined by
-        inverting the GAR, :func:`neural.reconstruct.refine_frames`, then averaged)
-    focal_px : the video camera's focal length (px) when known: ours and ours-independent
-        then fit a pinhole camera with it (unless ``effort["camera"]`` says "affine"); None
-        = an affine camera. eos always fits its affine camera. Ours and ours-independent
-        estimate the landmark noise (``landmark_std_px="auto"``) unless ``effort`` sets it.
+    images : (N, H, W, 3) the frames themselves (gar: the per-frame landmark fit of
+        ours-independent refined by inverting the GAR,
+        :func:`neural.reconstruct.refine_frames`, then averaged)
+    focal_px : the video camera's focal length (px) when known: ours, ours-independent and
+        gar's starting fits then fit a pinhole camera with it (unless ``effort["camera"]``
+        says "affine"); None = an affine camera. eos always fits its affine camera. Ours,
+        ours-independent and gar estimate the landmark noise (``landmark_std_px="auto"``)
+        unless ``effort`` sets it.
 
     Returns
     -------
@@ -152,14 +166,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
             from morphable.fitting import fit_landmarks
         except ImportError as e:
             raise InputError(f"method {method}: morphable.fitting is not available ({e})") from None
-        camera = effort.pop("camera", "perspective" if focal_px is not None else "affine")
-        if camera == "perspective" and focal_px is not None:
-            effort.setdefault("focal_px", focal_px)
-        # a video's landmark noise is unknown (detector, resolution, blur): estimate it
-        effort.setdefault("landmark_std_px", "auto")
+        effort = _video_fit_options(effort, focal_px)
+        camera = effort["camera"]
         t = time.perf_counter()
-        res = fit_landmarks(model, lm, image_size, camera=camera,
-                            shared_identity=method == "ours", **effort)
+        res = fit_landmarks(model, lm, image_size, shared_identity=method == "ours", **effort)
         v = res.vertices().mean(0)
         dt = time.perf_counter() - t
         return _reconstruction(model, v, dt, len(lm),
@@ -188,8 +198,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
             raise InputError(f"method gar: the neural plugin is not installed ({e}); "
                              "pip install -e '.[neural]'") from None
         t = time.perf_counter()
+        # each frame starts from the landmark fit ours-independent makes of it
         verts, reports = refine_frames(model, np.asarray(images)[usable], lm, "gar",
-                                       steps=int(effort.get("steps", 100)))
+                                       steps=int(effort.get("steps", 100)),
+                                       fit_options=_video_fit_options({}, focal_px))
         dt = time.perf_counter() - t
         return _reconstruction(model, verts.mean(0), dt, len(lm), {
             "photometric_loss_first_last": [[r["photometric_loss"][0], r["photometric_loss"][-1]]

@@ -393,7 +393,8 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
 
 
 def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
-                  n_iterations: int = 4, **options) -> tuple[np.ndarray, list]:
+                  n_iterations: int = 4, fit_options: dict | None = None,
+                  **options) -> tuple[np.ndarray, list]:
     """Reconstruct each frame of a video on its own: landmark fit, then :func:`refine`.
 
     Parameters
@@ -403,6 +404,9 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     landmarks : (N, 68, 2) px, NaN where missing
     renderer, steps, options : as :func:`refine` (the renderer is loaded once)
     n_iterations : of the landmark fit
+    fit_options : further keyword arguments of the landmark fit
+        (:func:`~morphable.fitting.fit_landmarks`), e.g. ``camera="perspective"`` with
+        ``focal_px`` when the video's camera is known
 
     Returns
     -------
@@ -417,7 +421,7 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     for image, lm in zip(images, landmarks):
         H, W = np.asarray(image).shape[:2]
         fit = fit_landmarks(model, np.asarray(lm, dtype=np.float64)[None], [[W, H]],
-                            n_iterations=n_iterations)
+                            n_iterations=n_iterations, **(fit_options or {}))
         res, rep = refine(image, fit, renderer, steps=steps, **options)
         out.append(res.vertices(0))
         reports.append(rep)
