@@ -536,7 +536,8 @@ def _parser():
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-videos", type=int, default=1,
                    help="--scan: draws of each synthetic video (seeds --seed, --seed + 1...); "
-                        "the table then gives mean ± std over the draws")
+                        "the table then gives mean ± std over the draws (per-vertex errors "
+                        "and heat maps: the first draw)")
     p.add_argument("--detect", action="store_true",
                    help="landmarks from dlib on rendered frames instead of projected scan landmarks")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
