@@ -458,7 +458,8 @@ def _average_runs(reports, n: int, key: str, unit: str, log=None, progress: bool
     metrics in ``AVERAGED`` are means over the runs that succeeded, ``std_mm`` the standard
     deviation of their ``mean_mm``, ``key`` the list of them, ``n_failed`` the others."""
     per, report = {}, None
-    for i, rep in enumerate(tqdm(reports, total=n, disable=not progress, desc=unit + "s", unit=unit)):
+    bar = tqdm(reports, total=n, disable=not progress, desc=unit + "s", unit=unit)
+    for i, rep in enumerate(bar):
         report = report or rep
         for m, cells in rep["methods"].items():
             for c, cell in cells.items():
@@ -605,7 +606,8 @@ def main(argv=None) -> int:
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
         if args.n_videos != 1:
-            raise InputError("--n-videos applies to --scan (--synthetic-scan: one video per subject)")
+            raise InputError("--n-videos applies to --scan "
+                             "(--synthetic-scan: one video per subject)")
     else:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
     ours = {k: v for k, v in (("n_iterations", args.iterations),

@@ -193,7 +193,6 @@ def test_shared_definition_error_is_not_fitted_into_the_identity(sfm):
     assert many < 0.75 * naive and many < one, (naive, one, many)
 
 
-
 @pytest.mark.parametrize("kind", ["affine", "perspective"])
 def test_shared_offsets_do_not_shrink_the_face(sfm, kind):
     # landmarks fix a face's shape, not its size (the camera's distance trades against it):
@@ -213,6 +212,7 @@ def test_shared_offsets_do_not_shrink_the_face(sfm, kind):
                          for s in (True, False))
         ratios.append(size(shared.neutral_vertices()) / size(alone.neutral_vertices()))
     assert abs(np.mean(ratios) - 1.0) < 0.04, ratios
+
 
 def test_shared_rows_are_the_derivatives_of_the_points(sfm, face):
     # the offsets scale with the face: the identity's derivatives gain the offsets' growth

@@ -286,7 +286,6 @@ def test_command_on_synthetic_subjects(tmp_path):
     assert r.returncode == 2 and "either --scan" in r.stderr and not (tmp_path / "s.json").exists()
 
 
-
 def test_command_on_several_video_draws(tmp_path, james_paths):
     # one video per condition decides a lot: --n-videos draws several (other trajectories
     # and noise) and reports mean and spread over them

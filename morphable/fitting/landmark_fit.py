@@ -403,7 +403,8 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
             c = solve_identity(P, base - expr, W, Ag, pb.prior, pb.shared, pb.gram)
             alpha = _from_coefficients(pb, c)
         if E:
-            ident = _combine(Ag, np.broadcast_to(_coefficients(pb, alpha), (N, K))) @ P.transpose(0, 2, 1)
+            c = np.broadcast_to(_coefficients(pb, alpha), (N, K))
+            ident = _combine(Ag, c) @ P.transpose(0, 2, 1)
             beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
         st = _State(R, t, s, alpha, beta, corr, st.rows)
     return st
