@@ -248,19 +248,16 @@ def _combine(rows, coeffs):
     return (rows.reshape(N, 3 * L, k) @ coeffs[..., None]).reshape(N, 3, L).transpose(0, 2, 1)
 
 
-def _points(pb: _Problem, st: _State):
-    """(N, 68, 3) model points of the correspondences, mm."""
-    m, A, B = st.rows
+def _points(pb: _Problem, st: _State, sel=slice(None)):
+    """(n, 68, 3) model points of the correspondences of the frames ``sel``, mm."""
+    m, A, B = (r[sel] for r in st.rows)
     X = m
     if pb.K:
-        X = X + _combine(A, np.broadcast_to(_coefficients(pb, st.alpha), (pb.N, pb.K)))
+        alpha = st.alpha if pb.shared else st.alpha[sel]
+        X = X + _combine(A, np.broadcast_to(_coefficients(pb, alpha), (len(m), pb.K)))
     if pb.E:
-        X = X + _combine(B, st.beta)
+        X = X + _combine(B, st.beta[sel])
     return X
-
-
-def _project_state(pb: _Problem, st: _State, X, jacobian=True):
-    return project(X, st.R, st.t, st.k, pb.principal, pb.perspective, jacobian)
 
 
 def _model_variance(pb: _Problem, st: _State, depth=None):
@@ -351,7 +348,7 @@ def _slide(pb: _Problem, st: _State):
         X = [bank.mean[r] + np.einsum("nlik,nk->nli", pb.A[r], alpha)
              + (np.einsum("nlie,ne->nli", pb.B[r], st.beta) if pb.E else 0.0) for r in (a, b)]
         X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
-        projected.append(_project_state(pb, st, X, False)[0])
+        projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
     pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
 
 
@@ -410,12 +407,13 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
     return st
 
 
-def _residuals(pb: _Problem, st: _State, jacobian: bool):
+def _residuals(pb: _Problem, st: _State, jacobian: bool, sel=slice(None)):
     """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals (jaw
-    points: across the outline only)."""
-    X = _points(pb, st)
-    uv, Xc, J, depth = _project_state(pb, st, X, jacobian)
-    return X, uv, Xc, J, depth, across_outline(uv - pb.y, pb.tangent)
+    points: across the outline only) of the frames ``sel``."""
+    X = _points(pb, st, sel)
+    uv, Xc, J, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel],
+                               pb.perspective, jacobian)
+    return X, uv, Xc, J, depth, across_outline(uv - pb.y[sel], pb.tangent[sel])
 
 
 def _across_rows(pb: _Problem, J):
@@ -429,22 +427,24 @@ def _across_rows(pb: _Problem, J):
     return J
 
 
-def _data_cost(pb, st, W, r=None, depth=None):
-    if r is None:
-        _, _, _, _, depth, r = _residuals(pb, st, False)
+def _data_cost(pb, st, W, r, depth, sel=slice(None)):
+    """(n,) per-frame costs of the frames ``sel`` (W, r, depth: theirs)."""
     c = (W * (r * r).sum(-1)).sum(1)
     if pb.perspective:
         bad = ((W > 0) & (depth <= 1e-3)).any(1)
         c = np.where(bad, np.inf, c)
     if pb.E:
-        c = c + pb.expression_weight * (st.beta ** 2).sum(1)
+        c = c + pb.expression_weight * (st.beta[sel] ** 2).sum(1)
     return c
 
 
-def _group_cost(pb, st, frame_cost):
+def _group_cost(pb, st, frame_cost, sel=slice(None)):
+    """Group costs from the per-frame costs of the frames ``sel`` (all frames for a shared
+    identity)."""
     g = frame_cost.sum(0, keepdims=True) if pb.shared else frame_cost
     if pb.K:
-        g = g + (pb.prior * st.alpha ** 2).sum(1)
+        alpha = st.alpha if pb.shared else st.alpha[sel]
+        g = g + (pb.prior * alpha ** 2).sum(1)
     return g
 
 
@@ -570,27 +570,8 @@ def _lm_stage(pb: _Problem, st: _State, n_iter: int, slide_every: int = 2):
 
 def _subset_cost(pb, st, W, sel):
     """Group costs of the frames ``sel`` (all frames for a shared identity)."""
-    m, A, B = (r[sel] for r in st.rows)
-    n = m.shape[0]
-    alpha = st.alpha if pb.shared else st.alpha[sel]
-    X = m
-    if pb.K:
-        X = X + _combine(A, np.broadcast_to(_coefficients(pb, alpha), (n, pb.K)))
-    if pb.E:
-        X = X + _combine(B, st.beta[sel])
-    uv, _, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel], pb.perspective, False)
-    r = across_outline(uv - pb.y[sel], pb.tangent[sel])
-    w = W[sel]
-    c = (w * (r * r).sum(-1)).sum(1)
-    if pb.perspective:
-        c = np.where(((w > 0) & (depth <= 1e-3)).any(1), np.inf, c)
-    if pb.E:
-        c = c + pb.expression_weight * (st.beta[sel] ** 2).sum(1)
-    if pb.shared:
-        c = c.sum(0, keepdims=True)
-    if pb.K:
-        c = c + (pb.prior * alpha ** 2).sum(1)
-    return c
+    _, _, _, _, depth, r = _residuals(pb, st, False, sel)
+    return _group_cost(pb, st, _data_cost(pb, st, W[sel], r, depth, sel), sel)
 
 
 def _gsum(pb, x):
