@@ -138,11 +138,11 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     images : (N, H, W, 3) the frames themselves (gar: the per-frame landmark fit of
         ours-independent refined by inverting the GAR,
         :func:`neural.reconstruct.refine_frames`, then averaged)
-    focal_px : the video camera's focal length (px) when known: ours, ours-independent and
-        gar's starting fits then fit a pinhole camera with it (unless ``effort["camera"]``
-        says "affine"); None = an affine camera. eos always fits its affine camera. Ours,
-        ours-independent and gar estimate the landmark noise (``landmark_std_px="auto"``)
-        unless ``effort`` sets it.
+    focal_px : the video camera's focal length (px) when known: ours and ours-independent
+        then fit a pinhole camera with it (unless ``effort["camera"]`` says "affine"), and so
+        do gar's starting fits (always); None = an affine camera. eos always fits its affine
+        camera. Ours and ours-independent estimate the landmark noise
+        (``landmark_std_px="auto"``) unless ``effort`` sets it; gar's starting fits always do.
 
     Returns
     -------
