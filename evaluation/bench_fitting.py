@@ -37,6 +37,7 @@ import numpy as np  # noqa: E402
 
 from morphable import load_model
 from morphable.camera import Camera, euler_to_matrix
+from morphable.cli.common import landmark_std_arg
 from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
 from morphable.fitting.correspondences import (Correspondences, across_outline, outline_points,
                                                slide_contours)
@@ -335,13 +336,12 @@ def main(argv=None):
     p.add_argument("--sweep-n", type=int, default=100, help="faces in the error-vs-runtime sweep (0 = skip)")
     p.add_argument("--no-eos", action="store_true", help="run ours only")
     p.add_argument("--report", type=Path, default=Path("reports/bench_fitting.json"))
-    p.add_argument("--landmark-std", default="1", metavar="PX|auto",
+    p.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
                    help="ours: landmark_std_px (default 1; auto estimates it per fit)")
     a = p.parse_args(argv)
     a.report.parent.mkdir(parents=True, exist_ok=True)
-    std = a.landmark_std if a.landmark_std == "auto" else float(a.landmark_std)
     run(a.n, seed=a.seed, sweep_n=a.sweep_n, out=a.report, eos_on=not a.no_eos,
-        landmark_std_px=std)
+        landmark_std_px=a.landmark_std)
     print(f"\nwrote {a.report}")
 
 

@@ -17,13 +17,14 @@ def add_fitting_arguments(parser) -> None:
                         help="focal length in px (perspective; default max(W, H))")
     parser.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
     parser.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
-    parser.add_argument("--landmark-std", type=_landmark_std, default=1.0, metavar="PX|auto",
+    parser.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
                         help="landmark noise in px, or auto: estimated from the fit (default 1)")
     parser.add_argument("--detector", choices=("hog", "cnn"), default="hog",
                         help="dlib face detector for images without landmark files")
 
 
-def _landmark_std(text: str):
+def landmark_std_arg(text: str):
+    """argparse type of ``--landmark-std``: a noise > 0 in px, or "auto"."""
     import argparse
 
     if text == "auto":
