@@ -16,7 +16,9 @@ prints a table (method x condition, mean ± std of the point-to-plane error in m
 frame) and writes the JSON report plus the per-vertex errors (``.npz`` beside the report).
 One synthetic video per condition is one draw of a head-pose trajectory and of landmark noise;
 ``--n-videos 5`` runs five draws (seeds ``--seed`` to ``--seed + 4``) and gives the mean and
-standard deviation over them.
+standard deviation over them. Method ``surface-fit`` is no reconstruction from the frames but
+the model fitted to the scan's surface itself: the error no method with that model can go
+below.
 
 A validation set that is not a real scan (for choosing settings without touching the held-out
 scans): ``--synthetic-scan ict --n-scans 8`` samples subjects from another model
@@ -48,12 +50,12 @@ from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 from .scans import UNITS, Scan, load_scan, model_scan
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
-__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "run_protocol",
-           "run_model_scans", "run_videos", "format_table", "save_heatmap", "main"]
+__all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "detector_error",
+           "run_protocol", "run_model_scans", "run_videos", "format_table", "save_heatmap", "main"]
 
 MIN_LANDMARKS = 10
 """Frames with fewer landmarks are dropped before reconstruction."""
-METHODS = ("ours", "ours-independent", "eos", "mean-face", "gar")
+METHODS = ("ours", "ours-independent", "eos", "mean-face", "surface-fit", "gar")
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
           "nose tip to the tangent plane of the nearest scan vertex, after alignment")
 
@@ -123,7 +125,8 @@ def _video_fit_options(effort: dict, focal_px) -> dict:
 
 
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
-                peers: dict | None = None, images=None, focal_px=None) -> Reconstruction:
+                peers: dict | None = None, images=None, focal_px=None,
+                scan: Scan | None = None) -> Reconstruction:
     """Reconstruct one face from the landmarks of several frames.
 
     Parameters
@@ -143,6 +146,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         do gar's starting fits (always); None = an affine camera. eos always fits its affine
         camera. Ours and ours-independent estimate the landmark noise
         (``landmark_std_px="auto"``) unless ``effort`` sets it; gar's starting fits always do.
+    scan : the scan itself, for ``surface-fit``: not a reconstruction from the frames but the
+        model fitted to the scan's surface (identity, expressions and a rigid pose,
+        :func:`evaluation.landmark_definitions.fit_surface`) — the error no method using this
+        model can go below; its time is reported in ``info``, not per frame
 
     Returns
     -------
@@ -161,6 +168,18 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         raise FitError(f"{method}: no frame has {MIN_LANDMARKS} landmarks")
     if method == "mean-face":
         return _reconstruction(model, model.mean.astype(np.float64), 0.0, len(lm))
+    if method == "surface-fit":
+        if scan is None:
+            raise InputError("method surface-fit: needs the scan")
+        key = ("surface-fit", id(model), id(scan))
+        if key not in peers:      # the same in every condition: fitted once
+            from .landmark_definitions import fit_surface
+
+            t = time.perf_counter()
+            alpha, beta = fit_surface(model, scan, iterations=15, expression=True, pose="joint")
+            peers[key] = (model.vertices(identity=alpha, expression=beta), time.perf_counter() - t)
+        v, dt = peers[key]
+        return _reconstruction(model, v, 0.0, len(lm), {"surface_fit_seconds": round(dt, 3)})
     if method in ("ours", "ours-independent"):
         try:
             from morphable.fitting import fit_landmarks
@@ -310,14 +329,31 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
 
         frames = render_frames(scan, video, seed=seed)
     if detect:
-        from .videos import detect_landmarks
+        from .videos import detect_landmarks, frontal_frame, project_landmarks
 
         lm = np.stack([detect_landmarks(im) for im in frames])
         desc["landmarks"] = "dlib on rendered frames"
+        # how far the detector is from the scan's own landmarks, projected without noise
+        truth = project_landmarks(scan, video.sampled_cameras(),
+                                  frontal_frame(scan.landmarks, model.landmark_positions()))
+        desc["detector_error_px"] = detector_error(lm, truth)
     else:
         desc["landmarks"] = "projected scan landmarks + noise"
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
     return lm, video.image_size, desc, frames if with_frames else None
+
+
+def detector_error(detected, truth) -> dict:
+    """RMS distance (px) of detected landmarks (N, 68, 2) from the true ones, over the points
+    both have: the jaw outline (iBUG 1-17) and the inner points apart, and how many frames
+    had a face found."""
+    d = np.linalg.norm(np.asarray(detected) - np.asarray(truth), axis=-1)       # (N, 68)
+    out = {}
+    for name, part in (("jaw", d[:, :17]), ("inner", d[:, 17:])):
+        e = part[np.isfinite(part)]
+        out[name + "_rms"] = round(float(np.sqrt(np.mean(e ** 2))), 2) if e.size else None
+    out["frames_detected"] = int(np.isfinite(np.asarray(detected)).all(-1).any(-1).sum())
+    return out
 
 
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
@@ -357,7 +393,7 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:
                 rec = reconstruct(m, model, lm, size, efforts.get(m), peers, images,
-                                  desc.get("focal_px", focal_px))
+                                  desc.get("focal_px", focal_px), scan)
                 cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
             except FitError as e:
                 cell, cmp = {"error": str(e)}, None

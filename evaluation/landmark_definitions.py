@@ -40,38 +40,78 @@ GROUPS = {"jaw": list(range(0, 8)) + list(range(9, 17)), "chin": [8],
 
 
 def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
-                max_distance_mm: float = 10.0, radius_mm: float = 95.0) -> np.ndarray:
-    """Identity coefficients (K,) fitting ``model`` to the scan surface.
+                max_distance_mm: float = 10.0, radius_mm: float = 95.0, expression: bool = False,
+                pose: str = "landmarks"):
+    """Coefficients fitting ``model`` to the scan surface -> identity (K,), expression (E,).
 
-    Each round: a similarity from the scan landmarks to the current face's landmark vertices,
-    then for every model vertex within ``radius_mm`` of the nose tip its nearest scan vertex
-    (closer than ``max_distance_mm``), and a ridge solve of the point-to-plane equations
-    ``n . (mean + A alpha - p) = 0`` with ``prior_weight |alpha|^2`` (mm^2 units).
+    Each round pairs every model vertex within ``radius_mm`` of the nose tip with its nearest
+    scan vertex (closer than ``max_distance_mm``) and solves the point-to-plane equations
+    ``n . (mean + A alpha + B beta - p) = 0`` (the scan moved into the model's frame) by
+    least squares with ``prior_weight (|alpha|^2 + |beta|^2)`` (mm^2 units).
+
+    Parameters
+    ----------
+    expression : also fit the expression coefficients (blendshape weights kept in [0, 1]);
+        False leaves them 0
+    pose : how the scan is placed in the model's frame. ``"landmarks"``: the similarity from
+        its landmarks to the current face's landmark vertices, every round (the face's size is
+        then the similarity's; the definition profile was measured this way). ``"joint"``: a
+        rigid transform, started from the landmarks and then solved with the coefficients (a
+        small rotation and translation in the same least squares), so that the landmarks'
+        definitions do not bias the fit and a face of the model is recovered.
+
+    Examples
+    --------
+    >>> alpha, beta = fit_surface(load_model("sfm"), scan, expression=True, pose="joint")  # doctest: +SKIP
     """
+    from scipy.optimize import lsq_linear
     from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
 
-    from morphable.metrics import align_landmarks
+    from morphable.metrics import Similarity, align_landmarks
     from morphable.normals import vertex_normals
 
+    if pose not in ("landmarks", "joint"):
+        raise InputError(f"pose: expected 'landmarks' or 'joint', got {pose!r}")
     ids = np.asarray(model.landmark_ids)
     ok = (ids >= 0) & np.isfinite(scan.landmarks).all(1)
     if ok.sum() < 4:
         raise InputError(f"{scan.source}: fewer than 4 landmarks shared with model {model.name}")
-    A = np.asarray(model.identity_basis, dtype=np.float64)          # (K, V, 3)
+    joint = pose == "joint"
+    K, E = model.n_identity, model.n_expression if expression else 0
+    basis = np.concatenate([model.identity_basis, model.expression_basis[:E]]).astype(np.float64)
     mean = np.asarray(model.mean, dtype=np.float64)
     normals = vertex_normals(scan.vertices, scan.triangles, weighting="angle")
-    alpha = np.zeros(model.n_identity)
+    # the rotation and translation (joint pose) go unregularised, before the coefficients
+    P = 6 if joint else 0
+    lower, upper = np.full(P + K + E, -np.inf), np.full(P + K + E, np.inf)
+    if E and model.expression_kind == "blendshapes":
+        lower[P + K:], upper[P + K:] = 0.0, 1.0
+    ridge = np.sqrt(prior_weight) * np.eye(P + K + E)[P:]
+    coeffs = np.zeros(K + E)
+    to_model = align_landmarks(scan.landmarks[ok], mean[ids[ok]], scale=False)
     for _ in range(iterations):
-        v = model.vertices(identity=alpha)
-        T = align_landmarks(scan.landmarks[ok], v[ids[ok]])
-        S, Sn = T.apply(scan.vertices), normals @ T.rotation.T
+        v = model.vertices(identity=coeffs[:K], expression=coeffs[K:] if E else None)
+        if not joint:
+            to_model = align_landmarks(scan.landmarks[ok], v[ids[ok]])
+        S, Sn = to_model.apply(scan.vertices), normals @ to_model.rotation.T
         sel = np.flatnonzero(np.linalg.norm(v - v[ids[30]], axis=1) < radius_mm)
         d, j = cKDTree(S).query(v[sel])
         sel, j = sel[d < max_distance_mm], j[d < max_distance_mm]
-        rows = np.einsum("vi,kvi->vk", Sn[j], A[:, sel])
+        rows = np.einsum("vi,kvi->vk", Sn[j], basis[:, sel])
         rhs = np.einsum("vi,vi->v", Sn[j], S[j] - mean[sel])
-        alpha = np.linalg.solve(rows.T @ rows + prior_weight * np.eye(len(alpha)), rows.T @ rhs)
-    return alpha
+        if joint:   # the face turned by w and moved by t: n . (w x v + t) = w . (v x n) + n . t
+            rows = np.concatenate([np.cross(v[sel], Sn[j]), Sn[j], rows], 1)
+        if np.isfinite(lower).any() or np.isfinite(upper).any():
+            sol = lsq_linear(np.vstack([rows, ridge]), np.r_[rhs, np.zeros(len(ridge))],
+                             bounds=(lower, upper)).x
+        else:
+            sol = np.linalg.solve(rows.T @ rows + ridge.T @ ridge, rows.T @ rhs)
+        coeffs = sol[P:]
+        if joint:   # moving the face by (w, t) is moving the scan by its inverse
+            step = Similarity(1.0, Rotation.from_rotvec(sol[:3]).as_matrix(), sol[3:6])
+            to_model = step.inverse() @ to_model
+    return coeffs[:K], np.r_[coeffs[K:], np.zeros(model.n_expression - E)]
 
 
 def definition_offsets(model, scan, **fit_kw) -> np.ndarray:
@@ -79,7 +119,7 @@ def definition_offsets(model, scan, **fit_kw) -> np.ndarray:
     landmarks rigidly onto those vertices (model axes); NaN where either is missing."""
     from morphable.metrics import align_landmarks
 
-    alpha = fit_surface(model, scan, **fit_kw)
+    alpha, _ = fit_surface(model, scan, **fit_kw)
     ids = np.asarray(model.landmark_ids)
     ok = (ids >= 0) & np.isfinite(scan.landmarks).all(1)
     v = model.vertices(identity=alpha)

@@ -145,6 +145,32 @@ def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
         assert e.shape == (sfm.n_vertices,) and np.isfinite(e).sum() == ours["n_vertices"]
 
 
+def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm):
+    from evaluation.florence import _reconstruction, evaluate, reconstruct, run_protocol
+    from evaluation.landmark_definitions import fit_surface
+    from evaluation.scans import Scan
+
+    # a model face with an expression, rotated and moved: its surface gives its coefficients
+    rng = np.random.default_rng(3)
+    alpha, beta = rng.standard_normal(sfm.n_identity), np.r_[0.6, np.zeros(sfm.n_expression - 1)]
+    v = sfm.vertices(alpha, beta)
+    c, s = np.cos(0.3), np.sin(0.3)
+    R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    scan = Scan(vertices=v @ R.T + 40.0, triangles=sfm.triangles,
+                landmarks=sfm.landmark_positions(alpha, beta) @ R.T + 40.0, source="model face")
+    a, b = fit_surface(sfm, scan, iterations=15, expression=True, pose="joint")
+    assert np.all((b >= 0) & (b <= 1)) and abs(b[0] - 0.6) < 0.1
+    cell, _ = evaluate(_reconstruction(sfm, sfm.vertices(a, b), 0.0, 1), scan)
+    assert cell["mean_mm"] < 0.1, cell
+    # on a real scan it is far below the mean face, and it needs the scan
+    report, _ = run_protocol(james, sfm, ["mean-face", "surface-fit"], ["cooperative"],
+                             n_sampled=2, n_frames=6)
+    floor, mean = (report["methods"][m]["cooperative"] for m in ("surface-fit", "mean-face"))
+    assert floor["mean_mm"] < 0.6 * mean["mean_mm"], (floor, mean)
+    with pytest.raises(InputError, match="needs the scan"):
+        reconstruct("surface-fit", sfm, np.zeros((1, 68, 2)), (64, 64))
+
+
 def test_model_scan_from_another_model(ict, sfm):
     from evaluation.scans import model_scan
     from morphable.metrics import align_landmarks
@@ -336,6 +362,21 @@ def test_detected_landmarks_on_rendered_frames(james, sfm):
     truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
     d = np.linalg.norm(lm[:, 17:] - truth[:, 17:], axis=-1)
     assert np.isfinite(lm).all() and np.nanmedian(d) < 10.0
+    # the report says how far the detector is from the projected scan landmarks (no noise)
+    err = desc["detector_error_px"]
+    assert err["frames_detected"] == 2 and 0.5 < err["inner_rms"] < 15.0 and err["jaw_rms"] > 0
+
+
+def test_detector_error():
+    from evaluation.florence import detector_error
+
+    truth = np.random.default_rng(0).uniform(0, 100, (3, 68, 2))
+    found = truth + [3.0, 4.0]
+    found[:, :17] += [6.0, 8.0]
+    found[2] = np.nan                                  # no face in the third frame
+    found[0, 20] = np.nan                              # nor this point
+    assert detector_error(found, truth) == {"jaw_rms": 15.0, "inner_rms": 5.0,
+                                            "frames_detected": 2}
 
 
 def test_real_frames_folder(james, sfm, tmp_path):
