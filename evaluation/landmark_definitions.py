@@ -62,7 +62,8 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
 
     Examples
     --------
-    >>> alpha, beta = fit_surface(load_model("sfm"), scan, expression=True, pose="joint")  # doctest: +SKIP
+    >>> sfm = load_model("sfm")  # doctest: +SKIP
+    >>> alpha, beta = fit_surface(sfm, scan, expression=True, pose="joint")  # doctest: +SKIP
     """
     from scipy.optimize import lsq_linear
     from scipy.spatial import cKDTree
