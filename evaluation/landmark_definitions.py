@@ -85,8 +85,9 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
     normals = vertex_normals(scan.vertices, scan.triangles, weighting="angle")
     # the rotation and translation (joint pose) go unregularised, before the coefficients
     P = 6 if joint else 0
+    bounded = bool(E) and model.expression_kind == "blendshapes"
     lower, upper = np.full(P + K + E, -np.inf), np.full(P + K + E, np.inf)
-    if E and model.expression_kind == "blendshapes":
+    if bounded:
         lower[P + K:], upper[P + K:] = 0.0, 1.0
     ridge = np.sqrt(prior_weight) * np.eye(P + K + E)[P:]
     coeffs = np.zeros(K + E)
@@ -103,7 +104,7 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
         rhs = np.einsum("vi,vi->v", Sn[j], S[j] - mean[sel])
         if joint:   # the face turned by w and moved by t: n . (w x v + t) = w . (v x n) + n . t
             rows = np.concatenate([np.cross(v[sel], Sn[j]), Sn[j], rows], 1)
-        if np.isfinite(lower).any() or np.isfinite(upper).any():
+        if bounded:
             sol = lsq_linear(np.vstack([rows, ridge]), np.r_[rhs, np.zeros(len(ridge))],
                              bounds=(lower, upper)).x
         else:
