@@ -137,7 +137,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     image_size : (W, H) px
     effort : method settings: ``n_iterations``/``n_identity`` for ours, ``num_iterations``
         for eos, ``steps`` (refinement steps, default 100) for gar
-    peers : cache of loaded peer fitters (reused between calls)
+    peers : cache of loaded peer fitters and of surface fits (reused between calls)
     images : (N, H, W, 3) the frames themselves (gar: the per-frame landmark fit of
         ours-independent refined by inverting the GAR,
         :func:`neural.reconstruct.refine_frames`, then averaged)
@@ -359,10 +359,12 @@ def detector_error(detected, truth) -> dict:
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
                  seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
-                 landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None):
+                 landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None,
+                 peers: dict | None = None):
     """Run every method on every condition (``log``: a callable taking one line per cell;
     ``progress``: a tqdm bar on stderr; ``focal_px``: the camera's focal length for real
-    frames, if known — synthetic videos know theirs).
+    frames, if known — synthetic videos know theirs; ``peers``: :func:`reconstruct`'s cache,
+    to share it between runs on the same scan).
 
     Returns
     -------
@@ -380,7 +382,7 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
             raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
     report = {"methods": {m: {} for m in methods}, "videos": {}}
     errors = {}
-    peers = {}
+    peers = peers if peers is not None else {}
     alignment = None
     bar = tqdm(total=len(conditions) * len(methods), disable=not progress, desc="florence",
                unit="cell")
@@ -475,11 +477,12 @@ def run_videos(scan: Scan, model, methods, conditions, n_videos: int = 5, seed: 
     """
     if n_videos < 1:
         raise InputError(f"--n-videos: need at least 1 video, got {n_videos}")
-    first = {}
+    first, peers = {}, {}     # eos and the surface fit are the same for every draw
 
     def runs():
         for i in range(n_videos):
-            rep, errors = run_protocol(scan, model, methods, conditions, seed=seed + i, **kwargs)
+            rep, errors = run_protocol(scan, model, methods, conditions, seed=seed + i,
+                                       peers=peers, **kwargs)
             first.setdefault("errors", errors)
             yield rep
 
