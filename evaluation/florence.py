@@ -29,7 +29,9 @@ reports, per method and condition, the mean over the subjects::
         --methods ours ours-independent eos mean-face --report reports/florence_ict.json
 
 or subjects of the fitted model itself with a landmark definition error added
-(``--synthetic-scan sfm --definition-noise 2.5``).
+(``--synthetic-scan sfm --definition-noise 2.5``). With ``--detect`` their frames are rendered
+and dlib finds the landmarks; ``--appearance PHOTO ...`` dresses the subjects in the colours of
+photos of faces (:func:`evaluation.scans.photo_colors`), without which a detector sees clay.
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ from tqdm import tqdm
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 
-from .scans import UNITS, Scan, load_scan, model_scan
+from .scans import UNITS, Scan, load_scan, model_scan, photo_colors
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "detector_error",
@@ -435,10 +437,12 @@ AVERAGED = ("mean_mm", "median_mm", "s_per_frame", "point_to_surface_mm", "scan_
 
 def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, seed: int = 0,
                     scan_seed: int = 100, log=None, progress: bool = False,
-                    definition_mm: float = 0.0, **kwargs):
+                    definition_mm: float = 0.0, appearances=(), **kwargs):
     """:func:`run_protocol` on ``n_scans`` subjects sampled from ``scan_model``
     (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...,
-    ``definition_mm`` of landmark definition error added to their landmarks).
+    ``definition_mm`` of landmark definition error added to their landmarks; ``appearances``:
+    (name, (V, 3) vertex colours) pairs, :func:`evaluation.scans.photo_colors`, worn in turn
+    by the subjects in rendered frames).
 
     Returns
     -------
@@ -449,7 +453,9 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
     """
     if n_scans < 1:
         raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
-    scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm)
+    appearances = list(appearances)
+    scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm,
+                        colors=appearances[i % len(appearances)][1] if appearances else None)
              for i in range(n_scans))
     runs = (run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)[0]
             for scan in scans)
@@ -458,6 +464,8 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
                       "seeds": [scan_seed + i for i in range(n_scans)],
                       "landmarks": f"the {scan_model.name} landmark vertices"
                       + (f" with {definition_mm:g} mm of definition error" if definition_mm else ""),
+                      "appearance": ([f"vertex colours of {name}" for name, _ in appearances]
+                                     or "untextured (shaded grey)"),
                       "std_mm": "standard deviation of the per-subject means"}
     return report
 
@@ -496,13 +504,16 @@ def _average_runs(reports, n: int, key: str, unit: str, log=None, progress: bool
     """Average the cells of ``n`` :func:`run_protocol` reports (an iterable, run lazily): the
     metrics in ``AVERAGED`` are means over the runs that succeeded, ``std_mm`` the standard
     deviation of their ``mean_mm``, ``key`` the list of them, ``n_failed`` the others."""
-    per, report = {}, None
+    per, report, detector = {}, None, {}
     bar = tqdm(reports, total=n, disable=not progress, desc=unit + "s", unit=unit)
     for i, rep in enumerate(bar):
         report = report or rep
         for m, cells in rep["methods"].items():
             for c, cell in cells.items():
                 per.setdefault(m, {}).setdefault(c, []).append(cell)
+        for c, desc in rep["videos"].items():
+            if "detector_error_px" in desc:
+                detector.setdefault(c, []).append(desc["detector_error_px"])
         if log:
             log(f"{unit} {i + 1}/{n}: " + ", ".join(
                 f"{m} {np.mean([cs[-1].get('mean_mm', np.nan) for cs in per[m].values()]):.3f}"
@@ -518,6 +529,15 @@ def _average_runs(reports, n: int, key: str, unit: str, log=None, progress: bool
             cell[key] = [round(x["mean_mm"], 4) for x in ok]
             cell["n_failed"] = len(runs) - len(ok)
             report["methods"][m][c] = cell
+    for c, errs in detector.items():
+        # the other video entries describe the first run; the detector's error is over all
+        mean = {}
+        for k in ("jaw_rms", "inner_rms"):
+            found = [e[k] for e in errs if e[k] is not None]
+            mean[k] = round(float(np.mean(found)), 2) if found else None
+        report["videos"][c]["detector_error_px"] = {
+            **mean, "frames_detected": [e["frames_detected"] for e in errs],
+            "over": f"mean over {len(errs)} {unit}s"}
     return report
 
 
@@ -564,6 +584,10 @@ def _parser():
                    help="instead of --scan: subjects sampled from this model (e.g. ict), its "
                         "landmark vertices as scan landmarks")
     p.add_argument("--n-scans", type=int, default=8, help="subjects for --synthetic-scan")
+    p.add_argument("--appearance", nargs="+", metavar="PHOTO",
+                   help="--synthetic-scan: photos of faces (landmarks in the .pts beside, else "
+                        "dlib's) whose colours the subjects wear in turn in rendered frames "
+                        "(--detect, gar); default untextured")
     p.add_argument("--definition-noise", type=float, default=0.0, metavar="MM",
                    help="--synthetic-scan: landmark definition error added to the subjects' "
                         "landmarks, mm per coordinate (jaw points: twice that along the jaw)")
@@ -641,12 +665,17 @@ def main(argv=None) -> int:
         scan_model = load_model(args.synthetic_scan)
         if not (np.isfinite(args.definition_noise) and args.definition_noise >= 0):
             raise InputError(f"--definition-noise {args.definition_noise}: must be >= 0")
-        for bad in ("detect", "frames_dir", "heatmaps"):
+        for bad in ("frames_dir", "heatmaps"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
         if args.n_videos != 1:
             raise InputError("--n-videos applies to --scan "
                              "(--synthetic-scan: one video per subject)")
+        if args.appearance and not (args.detect or "gar" in args.methods):
+            raise InputError("--appearance colours rendered frames: use it with --detect or "
+                             "the gar method")
+    elif args.appearance:
+        raise InputError("--appearance applies to --synthetic-scan (a scan has its own texture)")
     else:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
     ours = {k: v for k, v in (("n_iterations", args.iterations),
@@ -669,9 +698,10 @@ def main(argv=None) -> int:
     with logging_redirect_tqdm():
         if args.synthetic_scan:
             errors = {}
+            looks = [(Path(p).name, photo_colors(scan_model, p)) for p in args.appearance or ()]
             report = run_model_scans(scan_model, model, args.methods, args.conditions,
                                      args.n_scans, args.seed, definition_mm=args.definition_noise,
-                                     n_sampled=args.frames,
+                                     appearances=looks, n_sampled=args.frames, detect=args.detect,
                                      n_frames=args.video_frames, **common)
         elif args.n_videos != 1:
             if args.frames_dir:

@@ -22,7 +22,7 @@ from morphable.errors import InputError
 from morphable.landmarks import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
 
 __all__ = ["Scan", "load_scan", "read_scan_landmarks", "detect_units", "interocular",
-           "model_scan", "UNITS", "TYPICAL_INTEROCULAR_MM"]
+           "model_scan", "photo_colors", "UNITS", "TYPICAL_INTEROCULAR_MM"]
 
 UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 """Millimetres per unit."""
@@ -44,6 +44,7 @@ class Scan:
     uv : (T, 2) float64 texture coordinates in [0, 1] (v up) or None
     triangle_uv : (G, 3) int64 ids into ``uv`` per triangle corner, or None (``uv`` per vertex)
     texture : (H, W, 3) float64 in [0, 1] or None
+    colors : (S, 3) float64 in [0, 1], a colour per vertex (used where there is no texture), or None
     """
 
     vertices: np.ndarray
@@ -54,6 +55,7 @@ class Scan:
     uv: np.ndarray | None = None
     triangle_uv: np.ndarray | None = None
     texture: np.ndarray | None = None
+    colors: np.ndarray | None = None
 
     @property
     def nose_tip(self) -> np.ndarray:
@@ -201,7 +203,7 @@ def load_scan(path, landmarks, units: str = "auto") -> Scan:
 
 
 def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float = 0.0,
-               segment: str = "face", definition_mm: float = 0.0) -> Scan:
+               segment: str = "face", definition_mm: float = 0.0, colors=None) -> Scan:
     """A "scan" sampled from a morphable model: a validation subject that is not a real scan.
 
     Sampled from a model other than the one being fitted (e.g. ICT FaceKit for SFM fits),
@@ -224,6 +226,8 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     segment : the model segment kept as the scan surface (the whole mesh when the model has
         no such segment); the landmarks need not lie on it
     definition_mm : landmark definition error added to the model's own landmarks, mm
+    colors : (V, 3) in [0, 1] per model vertex, or None: the subject's skin in rendered frames
+        (:func:`photo_colors` gives a photo's; None renders it untextured grey)
 
     Returns
     -------
@@ -267,8 +271,45 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     source = f"{model.name} sample (seed {seed})"
     if definition_mm > 0:
         source += f", landmark definition error {definition_mm:g} mm"
+    if colors is not None:
+        colors = np.asarray(colors, dtype=np.float64)
+        if colors.shape != (model.n_vertices, 3):
+            raise InputError(f"model {model.name}: colors must be ({model.n_vertices}, 3), got "
+                             f"{colors.shape}")
+        colors = colors[ids]
     return Scan(vertices=vertices[ids], triangles=remap[triangles], landmarks=landmarks,
-                units="mm", source=source)
+                units="mm", source=source, colors=colors)
+
+
+def photo_colors(model, photo, landmarks=None) -> np.ndarray:
+    """A model's vertex colours taken from a photo of a face -> (V, 3) in [0, 1].
+
+    The model is fitted to the photo's landmarks (``landmarks``: a landmark file; default the
+    ``.pts`` beside the photo, else dlib's) and each vertex takes the colour the fit's camera
+    sees (:func:`morphable.raster.vertex_colors`; hidden ones their mirror's or the median).
+    Any subject of the model (:func:`model_scan`) then wears that face's skin, brows, eyes
+    and lips where the model puts them, so that a detector run on its rendered frames sees a
+    face, not shaded clay.
+
+    Examples
+    --------
+    >>> ict = load_model("ict")  # doctest: +SKIP
+    >>> colors = photo_colors(ict, "../shared/data/images/image_0010.png")  # doctest: +SKIP
+    >>> scan = model_scan(ict, 100, colors=colors)  # doctest: +SKIP
+    """
+    from morphable.fitting.files import fit_files
+    from morphable.raster import vertex_colors
+
+    photo = Path(photo)
+    if landmarks is None and photo.with_suffix(".pts").is_file():
+        landmarks = photo.with_suffix(".pts")
+    res, _ = fit_files([photo], [landmarks], model=model)
+    try:
+        colors, _ = vertex_colors(res.vertices(0), model.triangles, res.cameras[0], photo,
+                                  model.symmetry)
+    except InputError as e:
+        raise InputError(f"{photo}: {e}") from None
+    return colors
 
 
 def _jaw_on_contour(model, vertices, landmarks, arc_offset):

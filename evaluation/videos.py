@@ -294,7 +294,8 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
     """Render frames of a synthetic video with ``morphable.raster`` -> (k, H, W, 3) in [0, 1].
 
     The condition's light (soft frontal; a lamp to one side; hard sun from above with cast
-    shadows), blur and sensor noise are applied; the scan's texture is used when it has one.
+    shadows), blur and sensor noise are applied; the scan's texture is used when it has one,
+    else its vertex colours, if any.
     """
     try:
         from morphable.raster import DirectionalLight, render
@@ -315,7 +316,8 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
     light = DirectionalLight(direction=direction, color=strength)
     out = []
     for i in frames:
-        img = render(scan.vertices, scan.triangles, video.cameras[i], texture=texture, light=light,
+        img = render(scan.vertices, scan.triangles, video.cameras[i], colors=scan.colors,
+                     texture=texture, light=light,
                      ambient=ambient, background=(0.35, 0.4, 0.45), shadows=shadows,
                      supersample=supersample)
         img = np.asarray(img, dtype=np.float64)

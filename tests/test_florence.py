@@ -312,6 +312,26 @@ def test_command_on_synthetic_subjects(tmp_path):
     assert r.returncode == 2 and "either --scan" in r.stderr and not (tmp_path / "s.json").exists()
 
 
+def test_detector_on_synthetic_subjects(tmp_path, data_dir):
+    # the validation subjects rendered wearing a photo's colours and dlib run on the frames:
+    # the detector path gets a validation set; its error is averaged over the subjects
+    pytest.importorskip("dlib")
+    report = tmp_path / "r.json"
+    photo = data_dir / "images" / "image_0010.png"
+    r = run_cli("--synthetic-scan", "sfm", "--n-scans", "2", "--detect", "--methods", "ours",
+                "--conditions", "cooperative", "--frames", "2", "--video-frames", "4",
+                "--appearance", photo, "--report", report, "--quiet")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(report.read_text())
+    assert rep["scan"]["appearance"] == ["vertex colours of image_0010.png"]
+    video = rep["videos"]["cooperative"]
+    assert video["landmarks"].startswith("dlib") and rep["settings"]["detect"] is True
+    err = video["detector_error_px"]
+    assert err["over"] == "mean over 2 subjects" and len(err["frames_detected"]) == 2
+    assert 0.5 < err["inner_rms"] < 20.0
+    assert 0.3 < rep["methods"]["ours"]["cooperative"]["mean_mm"] < 5.0
+
+
 def test_command_on_several_video_draws(tmp_path, james_paths):
     # one video per condition decides a lot: --n-videos draws several (other trajectories
     # and noise) and reports mean and spread over them
@@ -424,3 +444,26 @@ def test_gar_method_refines_rendered_frames(james, sfm, tmp_path, monkeypatch):
     # two refinement steps move the per-frame fits only a little
     assert abs(gar["mean_mm"] - ours["mean_mm"]) < 0.5
     assert np.isfinite(errors["gar/outdoor"]).sum() > 1000
+
+
+def test_subjects_wear_a_photos_colours(sfm, data_dir):
+    # untextured renders are shaded clay to a detector; a photo's colours give it a face
+    pytest.importorskip("dlib")
+    from evaluation.florence import video_landmarks
+    from evaluation.scans import model_scan, photo_colors
+    from evaluation.videos import frontal_frame, project_landmarks, synthetic_video
+
+    colors = photo_colors(sfm, data_dir / "images" / "image_0010.png")
+    assert colors.shape == (sfm.n_vertices, 3) and 0 <= colors.min() and colors.max() <= 1
+    scan = model_scan(sfm, 3, colors=colors)
+    assert scan.colors.shape == scan.vertices.shape
+    lm, _, desc, _ = video_landmarks(scan, sfm, "cooperative", 2, 6, seed=0, detect=True)
+    video = synthetic_video(scan, "cooperative", sfm.landmark_positions(), 6, 2, seed=0)
+    truth = project_landmarks(scan, video.sampled_cameras(),
+                              frontal_frame(scan.landmarks, sfm.landmark_positions()))
+    d = np.linalg.norm(lm[:, 17:] - truth[:, 17:], axis=-1)
+    assert np.isfinite(lm).all() and np.sqrt(np.nanmean(d ** 2)) < 10.0
+    with pytest.raises(InputError, match="colors must be"):
+        model_scan(sfm, 3, colors=colors[:10])
+    with pytest.raises(InputError, match="no such image"):
+        photo_colors(sfm, data_dir / "images" / "missing.png")

@@ -374,3 +374,28 @@ def test_textured_scan_renders(data_dir):
     # skin and dark hair, not the green background nor the texture atlas' black padding
     assert face.mean(0)[0] > face.mean(0)[2] and (face.sum(-1) > 0.15).mean() > 0.8
     assert np.allclose(img[~vis.mask], [0, 1, 0])
+
+
+@pytest.mark.parametrize("kind", ["affine", "perspective"])
+def test_vertex_colors_read_back_a_rendered_sphere(kind):
+    from morphable.raster import vertex_colors
+
+    v, t = icosphere(subdivisions=4)
+    colors = 0.5 + 0.4 * np.sin(v / 15.0)               # smooth, different in each channel
+    cam = Camera.looking_at_face((256, 256), kind=kind)
+    img = render(v, t, cam, colors=colors, light=np.eye(9)[0], background=(0, 0, 0))
+    got, seen = vertex_colors(v, t, cam, img)
+    toward = v[:, 2] > 0                                 # the camera looks down -z at the front
+    assert seen[toward & (v[:, 2] > 25)].all() and not seen[v[:, 2] < 0].any()
+    assert np.abs(got[seen] - colors[seen]).max() < 0.05
+    # unseen vertices: the seen median, or the mirror's colour when it is seen
+    assert np.allclose(got[~seen], np.median(got[seen], 0))
+    mirror = np.array([np.argmin(np.linalg.norm(v - p * [1, 1, -1], axis=1)) for p in v])
+    got2, _ = vertex_colors(v, t, cam, img, symmetry=mirror)
+    back = ~seen & seen[mirror]
+    assert back.sum() > 100 and np.allclose(got2[back], got2[mirror[back]])
+    with pytest.raises(InputError, match="camera's is 256x256"):
+        vertex_colors(v, t, cam, img[:100])
+    with pytest.raises(InputError, match="no vertex"):
+        vertex_colors(v + [0, 0, 5000], t, Camera.looking_at_face((256, 256), kind="perspective"),
+                      img)

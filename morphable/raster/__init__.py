@@ -1,6 +1,6 @@
 """Rasterisation: visibility by ray casting (open3d / Embree), normal, depth and mask maps in
-screen and UV space, a differentiable (torch) interpolation path, Lambertian shading and PNG
-export.
+screen and UV space, a differentiable (torch) interpolation path, Lambertian shading, vertex
+colours read from a photo, and PNG export.
 
 open3d, torch and PIL load inside the functions that use them, not at import.
 
@@ -16,6 +16,7 @@ Examples
 >>> normal_map(square, tris, cam, vis=vis)[32, 32]
 array([0., 0., 1.])
 """
+from .colors import vertex_colors
 from .framing import frame_mesh
 from .interpolate import interpolate
 from .normal_maps import normal_map, sample_normals, tangent_frames, uv_layout, uv_normal_map
@@ -30,4 +31,4 @@ __all__ = ["Visibility", "visibility", "uv_visibility", "interpolate", "normal_m
            "sample_normals", "uv_normal_map", "uv_layout", "tangent_frames", "render",
            "DirectionalLight", "sh_basis", "shade_sh", "shade_sh_torch", "shade_directional",
            "sh_from_lights", "sample_texture", "as_texture", "frame_mesh", "save_normal_png",
-           "save_depth_png", "save_mask_png", "save_image_png", "read_depth_png"]
+           "save_depth_png", "save_mask_png", "save_image_png", "read_depth_png", "vertex_colors"]
