@@ -114,21 +114,27 @@ def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruc
                           model.n_vertices)
 
 
-def _video_fit_options(effort: dict, focal_px) -> dict:
+def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
     """Landmark-fit settings for a video's frames: a pinhole camera with the video's focal
-    length when it is known (unless ``effort["camera"]`` says otherwise), and the landmark
-    noise estimated (a video's is unknown: detector, resolution, blur) unless set."""
+    length when it is known (unless ``effort["camera"]`` says otherwise), the landmark
+    noise estimated (a video's is unknown: detector, resolution, blur) unless set, and the
+    detector's model error for frames whose landmarks were detected ((N,) bool ``detected``;
+    :data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless set."""
+    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+
     out = dict(effort)
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")
     if out["camera"] == "perspective" and focal_px is not None:
         out.setdefault("focal_px", focal_px)
     out.setdefault("landmark_std_px", "auto")
+    if detected is not None and np.any(detected):
+        out.setdefault("model_std_mm", np.where(detected, DETECTED_MODEL_STD_MM, MODEL_STD_MM))
     return out
 
 
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
                 peers: dict | None = None, images=None, focal_px=None,
-                scan: Scan | None = None) -> Reconstruction:
+                scan: Scan | None = None, detected=None) -> Reconstruction:
     """Reconstruct one face from the landmarks of several frames.
 
     Parameters
@@ -152,6 +158,10 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         model fitted to the scan's surface (identity, expressions and a rigid pose,
         :func:`evaluation.landmark_definitions.fit_surface`) — the error no method using this
         model can go below; its time is reported in ``info``, not per frame
+    detected : (N,) bool or None, the frames whose landmarks a detector found: ours and
+        ours-independent fit them with the detector's model error
+        (:data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless ``effort`` sets
+        ``model_std_mm``
 
     Returns
     -------
@@ -166,6 +176,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     # a frame with (almost) no landmarks is a detector failure: the video goes on without it
     usable = np.isfinite(lm).all(-1).sum(-1) >= MIN_LANDMARKS
     lm = lm[usable]
+    detected = None if detected is None else np.asarray(detected, dtype=bool)[usable]
     if len(lm) == 0:
         raise FitError(f"{method}: no frame has {MIN_LANDMARKS} landmarks")
     if method == "mean-face":
@@ -187,7 +198,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
             from morphable.fitting import fit_landmarks
         except ImportError as e:
             raise InputError(f"method {method}: morphable.fitting is not available ({e})") from None
-        effort = _video_fit_options(effort, focal_px)
+        effort = _video_fit_options(effort, focal_px, detected)
         camera = effort["camera"]
         t = time.perf_counter()
         res = fit_landmarks(model, lm, image_size, shared_identity=method == "ours", **effort)
@@ -222,7 +233,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         # each frame starts from the landmark fit ours-independent makes of it
         verts, reports = refine_frames(model, np.asarray(images)[usable], lm, "gar",
                                        steps=int(effort.get("steps", 100)),
-                                       fit_options=_video_fit_options({}, focal_px))
+                                       fit_options=_video_fit_options({}, focal_px, detected))
         dt = time.perf_counter() - t
         return _reconstruction(model, verts.mean(0), dt, len(lm), {
             "photometric_loss_first_last": [[r["photometric_loss"][0], r["photometric_loss"][-1]]
@@ -281,7 +292,8 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
 
 def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False):
     """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H),
-    the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None)."""
+    the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None, (k,) bool: the
+    frames without a ``.pts`` whose landmarks dlib detected)."""
     from PIL import Image
 
     from morphable.io.landmarks import read_pts
@@ -308,7 +320,9 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
 
             out.append(detect_landmarks(image))
         images.append(image)
-    return np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None
+    detected = np.array([not p.with_suffix(".pts").is_file() for p in chosen])
+    return (np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
+            detected)
 
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
@@ -317,8 +331,10 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
     ``frames_dir`` — when ``with_frames``, else None."""
     if frames_dir is not None:
-        lm, size, frames = _frames_from_folder(Path(frames_dir), condition, n_sampled, with_frames)
-        return lm, size, {"source": str(Path(frames_dir) / condition)}, frames
+        lm, size, frames, detected = _frames_from_folder(Path(frames_dir), condition, n_sampled,
+                                                         with_frames)
+        return lm, size, {"source": str(Path(frames_dir) / condition),
+                          "detected": detected.tolist()}, frames
     video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
                             n_sampled=n_sampled, seed=seed)
     lm = video.sampled_landmarks()
@@ -341,6 +357,7 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
         desc["detector_error_px"] = detector_error(lm, truth)
     else:
         desc["landmarks"] = "projected scan landmarks + noise"
+    desc["detected"] = [bool(detect)] * len(lm)
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
     return lm, video.image_size, desc, frames if with_frames else None
 
@@ -397,7 +414,7 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
             try:
                 rec = reconstruct(m, model, lm, size, efforts.get(m), peers, images,
-                                  desc.get("focal_px", focal_px), scan)
+                                  desc.get("focal_px", focal_px), scan, desc.get("detected"))
                 cell, cmp = evaluate(rec, scan, radius, icp, icp_scale, landmark_scale)
             except FitError as e:
                 cell, cmp = {"error": str(e)}, None

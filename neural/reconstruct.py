@@ -406,7 +406,7 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     n_iterations : of the landmark fit
     fit_options : further keyword arguments of the landmark fit
         (:func:`~morphable.fitting.fit_landmarks`), e.g. ``camera="perspective"`` with
-        ``focal_px`` when the video's camera is known
+        ``focal_px`` when the video's camera is known; an (N,) array is one value per frame
 
     Returns
     -------
@@ -418,10 +418,12 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     if isinstance(renderer, str):
         renderer = get_renderer(renderer, **(options.pop("renderer_options", None) or {}))
     out, reports = [], []
-    for image, lm in zip(images, landmarks):
+    for i, (image, lm) in enumerate(zip(images, landmarks)):
         H, W = np.asarray(image).shape[:2]
+        frame_options = {k: v[i] if isinstance(v, np.ndarray) and v.shape == (len(images),) else v
+                         for k, v in (fit_options or {}).items()}
         fit = fit_landmarks(model, np.asarray(lm, dtype=np.float64)[None], [[W, H]],
-                            n_iterations=n_iterations, **(fit_options or {}))
+                            n_iterations=n_iterations, **frame_options)
         res, rep = refine(image, fit, renderer, steps=steps, **options)
         out.append(res.vertices(0))
         reports.append(rep)

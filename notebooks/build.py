@@ -70,10 +70,12 @@ assert np.median(gap) < 15'''),
         new_code_cell('''\
 from morphable import load_model
 from morphable.fitting import fit_landmarks
+from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
 
 model = load_model("sfm")
 H, W = photo.shape[:2]
-fit = fit_landmarks(model, detected[None], [[W, H]])
+# a detector's errors are face-shaped: fit its points with its larger per-frame error
+fit = fit_landmarks(model, detected[None], [[W, H]], model_std_mm=DETECTED_MODEL_STD_MM)
 yaw, pitch, roll = fit.euler_deg[0]
 print(f"landmark RMSE {fit.landmark_rmse_px[0]:.2f} px, yaw {yaw:.1f}, pitch {pitch:.1f}, "
       f"roll {roll:.1f} deg, {fit.runtime_ms:.0f} ms")

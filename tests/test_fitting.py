@@ -246,6 +246,27 @@ def test_definition_error_of_one_frame_is_extra_variance(sfm, face):
         fit_landmarks(sfm, lm, (512, 512), definition_std_mm=-1.0)
 
 
+def test_model_std_per_frame(sfm, face):
+    # one value per frame: the same fit as the number when they agree; a detector's larger
+    # error (DETECTED_MODEL_STD_MM) leaves the identity nearer the mean
+    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
+
+    rng = np.random.default_rng(2)
+    lm = np.stack([synth(sfm, yaw=y, identity=face[0])[0] for y in (-20, 5, 25)])
+    lm = lm + rng.normal(0, 1, lm.shape)
+    a = fit_landmarks(sfm, lm, (512, 512), model_std_mm=2.0)
+    b = fit_landmarks(sfm, lm, (512, 512), model_std_mm=[2.0, 2.0, 2.0])
+    np.testing.assert_allclose(a.identity, b.identity, atol=1e-8)
+    c = fit_landmarks(sfm, lm, (512, 512), model_std_mm=[2.0, DETECTED_MODEL_STD_MM, 2.0])
+    d = fit_landmarks(sfm, lm, (512, 512), model_std_mm=DETECTED_MODEL_STD_MM)
+    norms = [np.linalg.norm(r.identity) for r in (a, c, d)]
+    assert norms[0] > norms[1] > norms[2] > 0
+    with pytest.raises(InputError, match="one per frame"):
+        fit_landmarks(sfm, lm, (512, 512), model_std_mm=[1.0, 2.0])
+    with pytest.raises(InputError, match="model_std_mm"):
+        fit_landmarks(sfm, lm, (512, 512), model_std_mm=[1.0, -2.0, 1.0])
+
+
 def test_definition_std_per_landmark(sfm, face):
     lm = synth(sfm, yaw=25, identity=face[0])[0]
     a = fit_landmarks(sfm, lm, (512, 512), definition_std_mm=3.0)

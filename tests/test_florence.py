@@ -233,6 +233,31 @@ def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
     assert pinhole.info["landmark_std_px"] > 0
     fixed = reconstruct("ours", sfm, lm, size, {"landmark_std_px": 2.0})
     assert fixed.info["landmark_std_px"] == 2.0
+    assert desc["detected"] == [False] * 3
+
+
+def test_detected_frames_get_the_detectors_error(james, sfm):
+    # frames whose landmarks a detector found are fitted with DETECTED_MODEL_STD_MM, unless
+    # the settings give model_std_mm; ours and ours-independent alike
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+
+    from evaluation.florence import reconstruct, video_landmarks
+
+    lm, size, desc, _ = video_landmarks(james, sfm, "indoor", 3, 6, seed=0)
+    f = desc["focal_px"]
+    for method in ("ours", "ours-independent"):
+        mixed = reconstruct(method, sfm, lm, size, focal_px=f, detected=[True, False, True])
+        same = fit_landmarks(sfm, lm, size, camera="perspective", focal_px=f,
+                             landmark_std_px="auto", shared_identity=method == "ours",
+                             model_std_mm=[DETECTED_MODEL_STD_MM, MODEL_STD_MM,
+                                           DETECTED_MODEL_STD_MM])
+        np.testing.assert_allclose(mixed.vertices, same.vertices().mean(0)[mixed.vertex_ids])
+        told = reconstruct(method, sfm, lm, size, {"model_std_mm": MODEL_STD_MM}, focal_px=f,
+                           detected=[True] * 3)
+        plain = reconstruct(method, sfm, lm, size, focal_px=f)
+        np.testing.assert_allclose(told.vertices, plain.vertices)
+        assert not np.allclose(mixed.vertices, plain.vertices)
 
 
 def test_landmark_definition_offsets(sfm, ict):

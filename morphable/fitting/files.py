@@ -129,11 +129,16 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     shared_identity : bool, one identity for all images (False: independent fits)
     detector : "hog" or "cnn" (dlib)
 
+    Frames whose landmarks are detected are fitted with ``model_std_mm``
+    :data:`~morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM` (a detector's errors are
+    face-shaped), the others with the fitter's default.
+
     Returns
     -------
     (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
     """
     from . import fit_landmarks
+    from .landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
     images = [Path(p) for p in images]
     if not images:
@@ -150,12 +155,14 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         from ..io.registry import load_model
 
         model = load_model(str(model))
+    model_std = np.array([MODEL_STD_MM if lm else DETECTED_MODEL_STD_MM for lm in landmarks])
     res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust="huber" if robust else None, shared_identity=shared_identity,
-                        landmark_std_px=landmark_std_px)
+                        landmark_std_px=landmark_std_px, model_std_mm=model_std)
     report = res.to_dict(images=[str(p) for p in images])
     report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
+    report["model_std_mm"] = model_std.tolist()
     return res, report
 
 

@@ -62,7 +62,7 @@ from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
 
-__all__ = ["fit_landmarks", "DEFINITION_STD_MM"]
+__all__ = ["fit_landmarks", "DEFINITION_STD_MM", "MODEL_STD_MM", "DETECTED_MODEL_STD_MM"]
 
 AUTO_ROUNDS = 1
 """Re-estimations of the landmark noise for ``landmark_std_px="auto"`` (each one refits)."""
@@ -90,6 +90,19 @@ defined): the per-coordinate RMS of the ICT FaceKit landmark vertices against SF
 same faces, 6 subjects, rounded (``python -m evaluation.landmark_definitions --synthetic-scan
 ict --n-scans 6``)."""
 
+MODEL_STD_MM = 1.5
+"""Default ``model_std_mm``: the model's per-frame landmark error for annotated landmarks, mm."""
+
+DETECTED_MODEL_STD_MM = 10.0
+"""``model_std_mm`` for frames whose landmarks a detector found (dlib), mm. A detector's errors
+are face-shaped (they come out of a shape regression) and much the same in the frames of a
+video, so the identity takes them for the face's shape: they say less about the shape than
+independent errors of their size (dlib on rendered faces: about 3 mm per coordinate for the
+inner points and 5 mm for the jaw, half of it shared by a video's frames). Chosen on rendered
+validation subjects wearing photos' colours (SFM and ICT FaceKit, 8 each, ``python -m
+evaluation.florence --synthetic-scan ict --detect --appearance ...``): 8-12 mm did best, 1.5 mm
+(:data:`MODEL_STD_MM`, for annotated landmarks) worst; the held-out scan was not used."""
+
 
 class _Problem:
     """Fixed data of a fit: landmarks, weights, sizes and settings."""
@@ -105,7 +118,8 @@ class _Problem:
         self.focal, self.perspective, self.K, self.E = focal, perspective, K, E
         self.shared, self.nonneg = shared, nonneg
         self.prior_weight, self.expression_weight = prior_weight, expression_weight
-        self.landmark_std_px, self.model_std_mm = landmark_std_px, model_std_mm
+        self.landmark_std_px = landmark_std_px
+        self.model_std_mm = np.broadcast_to(np.asarray(model_std_mm, np.float64), (y.shape[0],))
         self.robust, self.huber_k = robust, huber_k
         self.N = y.shape[0]
         # a landmark's definition error is shared by every frame of a subject: with one
@@ -268,7 +282,7 @@ def _model_variance(pb: _Problem, st: _State, depth=None):
         used = pb.mask & st.corr.defined
         d = np.where(used, depth, 0.0).sum(1) / np.maximum(used.sum(1), 1)
         scale = st.k / np.maximum(d, 1e-6)
-    return scale[:, None] ** 2 * (pb.model_std_mm ** 2 + pb.frame_def_std ** 2)
+    return scale[:, None] ** 2 * (pb.model_std_mm[:, None] ** 2 + pb.frame_def_std ** 2)
 
 
 def _weights(pb: _Problem, st: _State, depth=None):
@@ -632,7 +646,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                   n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
                   huber_k: float = 1.345, shared_identity: bool = True,
-                  landmark_std_px=1.0, model_std_mm: float = 1.5,
+                  landmark_std_px=1.0, model_std_mm=MODEL_STD_MM,
                   definition_std_mm=DEFINITION_STD_MM, focal_px=None,
                   contour: str = "slide", dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D iBUG-68 landmarks of one or more images.
@@ -667,8 +681,9 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         1 px, set the noise so that the normalised residuals add up to their degrees of
         freedom, refit), one value per shared identity; it costs about 60 % more time. The
         noise used is ``FitResult.landmark_std_px``.
-    model_std_mm : float
-        The model's per-frame landmark error (mm).
+    model_std_mm : float or (N,) array
+        The model's per-frame landmark error (mm), or per frame; for landmarks a detector
+        found, :data:`DETECTED_MODEL_STD_MM` (``morphable fit`` uses it for detected frames).
     definition_std_mm : float or (68,) array
         Standard deviation (mm, per coordinate) of each landmark's definition error, one 3D
         offset shared by all frames of a subject (see the module docstring); 0 = none.
@@ -722,10 +737,14 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                     ("huber_k", huber_k)):
         if not (np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)):
             raise InputError(f"{name}: must be finite and >= 0, got {v}")
-    if not auto_std and landmark_std_px == 0 and model_std_mm == 0:
-        raise InputError("landmark_std_px and model_std_mm cannot both be 0")
     y, given, size = _as_frames(landmarks, mask, image_size)
     N = y.shape[0]
+    model_std_mm = np.asarray(model_std_mm, dtype=np.float64)
+    if model_std_mm.shape not in ((), (N,)):
+        raise InputError(f"model_std_mm: expected a number or one per frame ({N}), got shape "
+                         f"{model_std_mm.shape}")
+    if not auto_std and landmark_std_px == 0 and np.any(model_std_mm == 0):
+        raise InputError("landmark_std_px and model_std_mm cannot both be 0")
     K = model.n_identity if n_identity is None else int(n_identity)
     E = model.n_expression if n_expression is None else int(n_expression)
     if not (0 <= K <= model.n_identity) or not (0 <= E <= model.n_expression):
@@ -751,7 +770,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
     pb = _Problem(bank, y, usable, principal, focal, perspective, K, E, shared_identity,
                   model.expression_kind == "blendshapes", float(prior_weight),
                   float(expression_weight), 1.0 if auto_std else float(landmark_std_px),
-                  float(model_std_mm), robust, float(huber_k), definition_std_mm)
+                  model_std_mm, robust, float(huber_k), definition_std_mm)
     with np.errstate(all="ignore"):
         st = _linear_stage(pb, n_linear)
         st, iters = _lm_stage(pb, st, n_iterations)
