@@ -26,7 +26,8 @@ def vertex_colors(vertices, triangles, camera, image, symmetry=None, min_facing:
     triangles : (F, 3) int
     camera : morphable.camera.Camera of the fit; its ``image_size`` is the photo's
     image : (H, W, 3) photo (uint8 or float in [0, 1]) or a path
-    symmetry : (V,) int or None, each vertex's mirror vertex (``MorphableModel.symmetry``)
+    symmetry : (V,) int or None, each vertex's mirror vertex (``MorphableModel.symmetry``; -1:
+        none)
     min_facing : cosine threshold, in [0, 1)
     depth_tol_mm : occlusion tolerance, mm
 
@@ -76,7 +77,7 @@ def vertex_colors(vertices, triangles, camera, image, symmetry=None, min_facing:
     out[seen] = colors
     if symmetry is not None:
         mirror = np.asarray(symmetry, dtype=np.int64)
-        take = ~seen & seen[mirror]
+        take = ~seen & (mirror >= 0) & seen[np.maximum(mirror, 0)]
         out[take] = out[mirror[take]]
         filled = seen | take
     else:
