@@ -385,7 +385,7 @@ def test_vertex_colors_read_back_a_rendered_sphere(kind):
     cam = Camera.looking_at_face((256, 256), kind=kind)
     img = render(v, t, cam, colors=colors, light=np.eye(9)[0], background=(0, 0, 0))
     got, seen = vertex_colors(v, t, cam, img)
-    toward = v[:, 2] > 0                                 # the camera looks down -z at the front
+    toward = v[:, 2] > 0                       # the camera sits on +z, looking down -z
     assert seen[toward & (v[:, 2] > 25)].all() and not seen[v[:, 2] < 0].any()
     assert np.abs(got[seen] - colors[seen]).max() < 0.05
     # unseen vertices: the seen median, or the mirror's colour when it is seen
