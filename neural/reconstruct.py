@@ -405,8 +405,9 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     renderer, steps, options : as :func:`refine` (the renderer is loaded once)
     n_iterations : of the landmark fit
     fit_options : further keyword arguments of the landmark fit
-        (:func:`~morphable.fitting.fit_landmarks`), e.g. ``camera="perspective"`` with
-        ``focal_px`` when the video's camera is known; an (N,) array is one value per frame
+        (:func:`~morphable.fitting.fit_landmarks`, one independent fit per frame, all frames in
+        one batch), e.g. ``camera="perspective"`` with ``focal_px`` when the video's camera is
+        known, or per-frame values such as ``model_std_mm``
 
     Returns
     -------
@@ -417,15 +418,14 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
 
     if isinstance(renderer, str):
         renderer = get_renderer(renderer, **(options.pop("renderer_options", None) or {}))
+    images = np.asarray(images)
+    H, W = images.shape[1:3]
+    fit = fit_landmarks(model, np.asarray(landmarks, dtype=np.float64), [W, H],
+                        shared_identity=False, n_iterations=n_iterations, **(fit_options or {}))
     out, reports = [], []
-    for i, (image, lm) in enumerate(zip(images, landmarks)):
-        H, W = np.asarray(image).shape[:2]
-        frame_options = {k: v[i] if isinstance(v, np.ndarray) and v.shape == (len(images),) else v
-                         for k, v in (fit_options or {}).items()}
-        fit = fit_landmarks(model, np.asarray(lm, dtype=np.float64)[None], [[W, H]],
-                            n_iterations=n_iterations, **frame_options)
-        res, rep = refine(image, fit, renderer, steps=steps, **options)
-        out.append(res.vertices(0))
+    for i, image in enumerate(images):
+        res, rep = refine(image, fit, renderer, steps=steps, frame=i, **options)
+        out.append(res.vertices(i))
         reports.append(rep)
     return np.stack(out), reports
 
