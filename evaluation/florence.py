@@ -120,7 +120,7 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
     noise estimated (a video's is unknown: detector, resolution, blur) unless set, and the
     detector's model error for frames whose landmarks were detected ((N,) bool ``detected``;
     :data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless set."""
-    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+    from morphable.fitting.landmark_fit import frame_model_std
 
     out = dict(effort)
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")
@@ -128,7 +128,7 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
         out.setdefault("focal_px", focal_px)
     out.setdefault("landmark_std_px", "auto")
     if detected is not None and np.any(detected):
-        out.setdefault("model_std_mm", np.where(detected, DETECTED_MODEL_STD_MM, MODEL_STD_MM))
+        out.setdefault("model_std_mm", frame_model_std(detected))
     return out
 
 
@@ -308,19 +308,17 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
     sizes = {Image.open(p).size for p in chosen}
     if len(sizes) != 1:
         raise InputError(f"{d}: frames have different sizes {sorted(sizes)}")
+    detected = np.array([not p.with_suffix(".pts").is_file() for p in chosen])
     out, images = [], []
-    for p in chosen:
-        pts = p.with_suffix(".pts")
-        image = (np.asarray(Image.open(p).convert("RGB"))
-                 if with_frames or not pts.is_file() else None)
-        if pts.is_file():
-            out.append(read_pts(pts))
-        else:
+    for p, found in zip(chosen, detected):
+        image = np.asarray(Image.open(p).convert("RGB")) if with_frames or found else None
+        if found:
             from .videos import detect_landmarks
 
             out.append(detect_landmarks(image))
+        else:
+            out.append(read_pts(p.with_suffix(".pts")))
         images.append(image)
-    detected = np.array([not p.with_suffix(".pts").is_file() for p in chosen])
     return (np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
             detected)
 

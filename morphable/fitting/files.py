@@ -138,7 +138,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
     """
     from . import fit_landmarks
-    from .landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+    from .landmark_fit import frame_model_std
 
     images = [Path(p) for p in images]
     if not images:
@@ -155,7 +155,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         from ..io.registry import load_model
 
         model = load_model(str(model))
-    model_std = np.array([MODEL_STD_MM if lm else DETECTED_MODEL_STD_MM for lm in landmarks])
+    model_std = frame_model_std([not lm for lm in landmarks])
     res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust="huber" if robust else None, shared_identity=shared_identity,

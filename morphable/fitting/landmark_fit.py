@@ -62,7 +62,8 @@ from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
 
-__all__ = ["fit_landmarks", "DEFINITION_STD_MM", "MODEL_STD_MM", "DETECTED_MODEL_STD_MM"]
+__all__ = ["fit_landmarks", "frame_model_std", "DEFINITION_STD_MM", "MODEL_STD_MM",
+           "DETECTED_MODEL_STD_MM"]
 
 AUTO_ROUNDS = 1
 """Re-estimations of the landmark noise for ``landmark_std_px="auto"`` (each one refits)."""
@@ -102,6 +103,12 @@ inner points and 5 mm for the jaw, half of it shared by a video's frames). Chose
 validation subjects wearing photos' colours (SFM and ICT FaceKit, 8 each, ``python -m
 evaluation.florence --synthetic-scan ict --detect --appearance ...``): 8-12 mm did best, 1.5 mm
 (:data:`MODEL_STD_MM`, for annotated landmarks) worst; the held-out scan was not used."""
+
+
+def frame_model_std(detected) -> np.ndarray:
+    """(N,) ``model_std_mm`` per frame, mm: :data:`DETECTED_MODEL_STD_MM` where ``detected``
+    ((N,) bool: a detector found the frame's landmarks), else :data:`MODEL_STD_MM`."""
+    return np.where(np.asarray(detected, dtype=bool), DETECTED_MODEL_STD_MM, MODEL_STD_MM)
 
 
 class _Problem:
