@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .correspondences import jaw_arc_positions, landmark_bank, march_lines, march_silhouette
+from .correspondences import (interpolate_arc, jaw_arc_positions, landmark_bank, march_lines,
+                              march_silhouette)
 
 __all__ = ["simulate_landmarks"]
 
@@ -52,11 +53,11 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     for side, chain in bank.polylines:
         chain_ids = bank.vertex_ids[chain]
         P, arc, at = jaw_arc_positions(model, side, chain_ids, verts)
-        Nz = normals[chain_ids, 2]
+        facing = np.interp(at, arc, normals[chain_ids, 2])
         view = np.array([[0.0, 0.0, 1.0]])         # normals are already in the camera frame
-        for j, a, line in zip(side, at, march_lines(model, side, chain_ids)):
-            p = np.array([np.interp(a, arc, P[:, k]) for k in range(3)])
-            if np.interp(a, arc, Nz) < 0:
+        for j, p, nz, line in zip(side, interpolate_arc(P, arc, at), facing,
+                                  march_lines(model, side, chain_ids)):
+            if nz < 0:
                 i0, i1, w = (x[0, 0] for x in march_silhouette(line[None], normals[line][None], view))
                 p = (1 - w) * verts[i0] + w * verts[i1]
             lms[j] = camera.project(p[None])[0]
