@@ -47,7 +47,7 @@ import numpy as np
 from tqdm import tqdm
 
 from morphable.errors import FitError, InputError, one_line_errors
-from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
+from morphable.metrics import CROP_RADIUS_MM, compare_to_scan, submesh
 
 from .scans import UNITS, Scan, load_scan, model_scan, photo_colors
 from .videos import CONDITIONS, sample_frames, synthetic_video
@@ -105,11 +105,7 @@ def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruc
     if skin:
         keep = np.zeros(model.n_vertices, dtype=bool)
         keep[np.concatenate(skin)] = True
-        tri = tri[keep[tri].all(1)]
-        ids = np.unique(tri)
-        remap = np.full(model.n_vertices, -1, dtype=np.int64)
-        remap[ids] = np.arange(len(ids))
-        tri = remap[tri]
+        ids, tri = submesh(tri, keep)
     return Reconstruction(vertices[ids], tri, lm, seconds, n_frames, dict(info or {}), ids,
                           model.n_vertices)
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from morphable.errors import InputError
 from morphable.landmarks import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
+from morphable.metrics import submesh
 
 __all__ = ["Scan", "load_scan", "read_scan_landmarks", "detect_units", "interocular",
            "model_scan", "photo_colors", "UNITS", "TYPICAL_INTEROCULAR_MM"]
@@ -259,15 +260,12 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     if definition_mm > 0:
         inner = np.r_[8, np.arange(17, 68)]
         landmarks[inner] += rng.normal(0.0, definition_mm, (len(inner), 3))
-    triangles = model.triangles
+    keep = np.ones(model.n_vertices, dtype=bool)
     if segment in (model.segments or {}):
-        keep = np.zeros(model.n_vertices, dtype=bool)
+        keep[:] = False
         keep[model.segments[segment]] = True
-        triangles = triangles[keep[triangles].all(1)]
     # only the surface's vertices: silhouettes and visibility must not see eyeballs or teeth
-    ids = np.unique(triangles)
-    remap = np.full(model.n_vertices, -1, dtype=np.int64)
-    remap[ids] = np.arange(len(ids))
+    ids, triangles = submesh(model.triangles, keep)
     source = f"{model.name} sample (seed {seed})"
     if definition_mm > 0:
         source += f", landmark definition error {definition_mm:g} mm"
@@ -277,7 +275,7 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
             raise InputError(f"model {model.name}: colors must be ({model.n_vertices}, 3), got "
                              f"{colors.shape}")
         colors = colors[ids]
-    return Scan(vertices=vertices[ids], triangles=remap[triangles], landmarks=landmarks,
+    return Scan(vertices=vertices[ids], triangles=triangles, landmarks=landmarks,
                 units="mm", source=source, colors=colors)
 
 

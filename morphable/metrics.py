@@ -31,7 +31,7 @@ import numpy as np
 
 from .errors import FitError, InputError
 
-__all__ = ["Similarity", "align_landmarks", "crop_sphere", "crop_mesh", "icp_refine",
+__all__ = ["Similarity", "align_landmarks", "crop_sphere", "crop_mesh", "submesh", "icp_refine",
            "point_to_plane", "point_to_surface", "compare_to_scan", "Comparison",
            "NOSE_TIP", "CROP_RADIUS_MM"]
 
@@ -185,12 +185,28 @@ def crop_mesh(vertices, triangles, center, radius: float = CROP_RADIUS_MM):
     """
     v = _points(vertices, "mesh vertices")
     f = _triangles(triangles, len(v), "mesh")
-    inside = crop_sphere(v, center, radius)
-    f = f[inside[f].all(1)]
+    ids, f = submesh(f, crop_sphere(v, center, radius))
+    return v[ids], f, ids
+
+
+def submesh(triangles, keep):
+    """The triangles whose three vertices are all kept, on the vertices they use.
+
+    Parameters
+    ----------
+    triangles : (F, 3) int
+    keep : (V,) bool, the vertices that may stay
+
+    Returns
+    -------
+    ids : (n,) int64 — the vertices used by a kept triangle (indices into the input)
+    triangles : (m, 3) int64 into ``ids``
+    """
+    f = triangles[keep[triangles].all(1)]
     ids = np.unique(f)
-    remap = np.full(len(v), -1, dtype=np.int64)
+    remap = np.full(len(keep), -1, dtype=np.int64)
     remap[ids] = np.arange(len(ids))
-    return v[ids], remap[f], ids
+    return ids, remap[f]
 
 
 def point_to_plane(points, surface_points, surface_normals) -> np.ndarray:
