@@ -29,14 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import InputError, one_line_errors
+from morphable.landmarks import DEFINITION_GROUPS
 
-__all__ = ["GROUPS", "fit_surface", "definition_offsets", "group_rms", "main"]
-
-GROUPS = {"jaw": list(range(0, 8)) + list(range(9, 17)), "chin": [8],
-          "eyebrows": list(range(17, 27)), "nose ridge": list(range(27, 31)),
-          "nose base": list(range(31, 36)), "eyes": list(range(36, 48)),
-          "mouth": list(range(48, 68))}
-"""iBUG-68 landmark groups (0-based); the jaw points have no fixed model vertex in the SFM."""
+__all__ = ["fit_surface", "definition_offsets", "group_rms", "main"]
 
 
 def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
@@ -136,7 +131,7 @@ def group_rms(offsets) -> dict:
     (S, 68, 3) or (68, 3) offsets; groups without values are left out."""
     d = np.asarray(offsets, dtype=np.float64).reshape(-1, 68, 3)
     out = {}
-    for name, ids in GROUPS.items():
+    for name, ids in DEFINITION_GROUPS.items():
         g = d[:, ids].reshape(-1, 3)
         g = g[np.isfinite(g).all(1)]
         if len(g):

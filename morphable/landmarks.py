@@ -10,8 +10,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["N_LANDMARKS", "GROUPS", "INNER", "JAW", "MIRROR", "from_menpo_labels",
-           "as_landmarks"]
+__all__ = ["N_LANDMARKS", "GROUPS", "DEFINITION_GROUPS", "INNER", "JAW", "MIRROR",
+           "from_menpo_labels", "as_landmarks"]
 
 N_LANDMARKS = 68
 
@@ -25,6 +25,18 @@ GROUPS = {
     "mouth": np.arange(48, 68),
 }
 JAW = GROUPS["jaw"]
+DEFINITION_GROUPS = {
+    "jaw": np.r_[0:8, 9:17],
+    "chin": np.array([8]),
+    "eyebrows": np.arange(17, 27),
+    "nose ridge": np.arange(27, 31),
+    "nose base": np.arange(31, 36),
+    "eyes": np.arange(36, 48),
+    "mouth": np.arange(48, 68),
+}
+"""Landmark groups by how well their annotation is defined (the size of the definition error,
+:data:`morphable.fitting.landmark_fit.DEFINITION_STD_MM`): the chin apart from the jaw, the
+nose's ridge apart from its base, both sides together."""
 INNER = np.arange(17, 68)
 """The 51 inner points (iBUG 18-68), used when the jaw outline is unreliable."""
 

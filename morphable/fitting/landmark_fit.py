@@ -55,7 +55,7 @@ import time
 import numpy as np
 
 from ..errors import FitError, InputError
-from ..landmarks import as_landmarks
+from ..landmarks import DEFINITION_GROUPS, as_landmarks
 from .correspondences import (Correspondences, across_outline, landmark_bank, outline_points,
                               slide_contours)
 from .linear import gram_hessian, project_rows, solve_expression, solve_identity
@@ -74,13 +74,10 @@ AFFINE_DISTANCE_MM = 600.0
 
 def _definition_profile() -> np.ndarray:
     d = np.empty(68)
-    d[0:17] = 2.0        # the jaw outline (distance across it; not measured: no SFM vertices)
-    d[8] = 3.1           # chin
-    d[17:27] = 4.2       # eyebrows
-    d[27:31] = 2.7       # nose ridge
-    d[31:36] = 1.6       # nose base
-    d[36:48] = 2.3       # eye corners and lids
-    d[48:68] = 2.5       # mouth
+    for group, mm in (("jaw", 2.0),    # distance across the outline; not measured: no SFM vertices
+                      ("chin", 3.1), ("eyebrows", 4.2), ("nose ridge", 2.7), ("nose base", 1.6),
+                      ("eyes", 2.3), ("mouth", 2.5)):
+        d[DEFINITION_GROUPS[group]] = mm
     return d
 
 
