@@ -39,13 +39,15 @@ import torch
 from morphable.camera import Camera
 from morphable.errors import FitError, InputError
 
-__all__ = ["face_crop", "crop_camera", "crop_image", "refine", "refine_frames", "edit",
-           "Refinement", "DEFAULT_WEIGHTS", "default_inverter_path"]
+__all__ = ["face_crop", "crop_camera", "crop_image", "landmark_trust", "refine", "refine_frames",
+           "edit", "Refinement", "DEFAULT_WEIGHTS", "default_inverter_path"]
 
 DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha": 1e-3,
                    "beta": 1e-4}
 """Loss weights of :func:`refine`; landmark residuals are in pixels of the renderer
-resolution, photometric ones in [0, 1] intensity. ``lmk`` and ``alpha`` were chosen on 4
+resolution, photometric ones in [0, 1] intensity. ``lmk`` is the weight of annotated
+landmarks; a frame the landmark fit gave a larger model error (detected landmarks,
+``DETECTED_MODEL_STD_MM``) has it scaled down by its landmark variance (:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4
 validation faces (``neural.ablate.held_out_faces(4, seed=777)``, not the ablation's): mean
 vertex error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
 alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
@@ -61,6 +63,29 @@ def default_inverter_path() -> Path | None:
     use another file, e.g. ``runs/inv/inverter.pt`` of :mod:`neural.train_inverter`)."""
     p = Path(__file__).resolve().parent / "weights" / "inverter_tiny.pt"
     return p if p.is_file() else None
+
+
+def landmark_trust(fit, frame: int = 0) -> float:
+    """How much the landmark fit trusted frame ``frame``'s landmarks relative to annotated ones:
+    ``(s^2 + (k m_0)^2) / (s^2 + (k m)^2)`` with ``s`` its landmark noise (px), ``m`` its model
+    error (mm; ``m_0`` = ``MODEL_STD_MM``, annotations) and ``k`` the image scale at the face
+    (px/mm). 1 for annotated landmarks, about 0.03 for detected ones (10 mm) at 3 px/mm; 1 when
+    the fit does not record them. A detector's errors are face-shaped and shared by a video's
+    frames: the refinement must not pull the face onto them harder than the fit did."""
+    from morphable.fitting.landmark_fit import MODEL_STD_MM
+
+    m = np.asarray(fit.model_std_mm, dtype=np.float64)
+    if not len(m):
+        return 1.0
+    s2 = float(fit.landmark_std_px[frame]) ** 2 if len(fit.landmark_std_px) else 1.0
+    cam = fit.cameras[frame]
+    if cam.kind == "affine":
+        k = cam.scale
+    else:
+        ids = np.asarray(fit.landmark_vertices[frame])
+        pts = fit.model.vertices_at(ids[ids >= 0], fit.frame_identity[frame], fit.expression[frame])
+        k = cam.focal / float(np.mean(cam.depth(pts)))
+    return float((s2 + (k * MODEL_STD_MM) ** 2) / (s2 + (k * m[frame]) ** 2))
 
 
 def face_crop(landmarks) -> tuple[float, float, float]:
@@ -323,9 +348,10 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
         terms["lmk"] = (uv - lm_target).pow(2).sum(1).mean()
         terms["alpha"] = alpha.pow(2).sum()
         terms["beta"] = beta.pow(2).sum()
-        total = sum(lam[k] * v for k, v in terms.items())
+        total = sum(w[k] * v for k, v in terms.items())
         return total, terms, img
 
+    w = {**lam, "lmk": lam["lmk"] * landmark_trust(fit, frame)}
     history, photo_hist, trace = [], [], []
 
     def record(step):
@@ -379,7 +405,7 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
     report = {"renderer": name, "renderer_weights": getattr(renderer, "weights", None),
               "steps": int(steps), "resolution": R, "crop_px": [round(c, 2) for c in crop],
               "features": feat_name, "latent_init": init if is_gar else None,
-              "loss_weights": lam, "photometric_loss": photo_hist, "loss": history,
+              "loss_weights": w, "photometric_loss": photo_hist, "loss": history,
               "landmark_rmse_px_before": before, "landmark_rmse_px_after": float(rmse[frame]),
               "runtime_s": round(time.perf_counter() - t0, 3)}
     if trace_every > 0:

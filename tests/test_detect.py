@@ -64,7 +64,7 @@ def test_cli_fit_detects_when_no_landmarks_given(takeo, tmp_path):
     # detected landmarks are fitted with the detector's error, annotated ones with the default
     from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
-    assert rep["model_std_mm"] == [DETECTED_MODEL_STD_MM]
+    assert rep["frames"][0]["model_std_mm"] == DETECTED_MODEL_STD_MM
     assert main(["fit", str(takeo), "--landmarks", str(takeo.with_suffix(".pts")),
                  "--report", str(report)]) == 0
-    assert json.loads(report.read_text())["model_std_mm"] == [MODEL_STD_MM]
+    assert json.loads(report.read_text())["frames"][0]["model_std_mm"] == MODEL_STD_MM

@@ -190,3 +190,25 @@ def test_refine_frames_one_mesh_per_frame(tmp_path):
     # each frame's mesh is near its own face, not the other one
     d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
     assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
+
+
+def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):
+    """Refinement weighs a frame's landmarks as the landmark fit did: annotated ones fully,
+    detected ones (a detector's model error) far less, on either camera."""
+    import dataclasses
+
+    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
+    from neural.reconstruct import landmark_trust
+
+    _, fit, _ = synthetic
+    assert landmark_trust(fit) == pytest.approx(1.0)
+    lm = fit.landmarks
+    for camera, opts in (("affine", {}), ("perspective", {"focal_px": 600.0})):
+        det = fit_landmarks(sfm, lm, np.array([[200.0, 200.0]]), camera=camera,
+                            model_std_mm=DETECTED_MODEL_STD_MM, **opts)
+        t = landmark_trust(det)
+        assert 0.01 < t < 0.1, (camera, t)
+    # a result that does not record its noise model is trusted as annotated
+    assert landmark_trust(dataclasses.replace(fit, model_std_mm=np.zeros(0))) == 1.0
+    _, report = refine(synthetic[0], det, "classical", steps=1, resolution=32)
+    assert report["loss_weights"]["lmk"] == pytest.approx(t)

@@ -162,7 +162,6 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
                         landmark_std_px=landmark_std_px, model_std_mm=model_std)
     report = res.to_dict(images=[str(p) for p in images])
     report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
-    report["model_std_mm"] = model_std.tolist()
     return res, report
 
 

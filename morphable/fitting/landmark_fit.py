@@ -816,6 +816,7 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                     landmark_vertices=np.where(used, st.corr.vertex_ids(bank), -1),
                     shared_identity=bool(shared_identity), iterations=iters,
                     cost=(np.where(used, d2, 0.0)).sum(1), dtype=np.dtype(dtype),
-                    landmark_std_px=np.broadcast_to(pb.landmark_std_px, (N,)).astype(np.float64))
+                    landmark_std_px=np.broadcast_to(pb.landmark_std_px, (N,)).astype(np.float64),
+                    model_std_mm=pb.model_std_mm.astype(np.float64))
     res.runtime_ms = (time.perf_counter() - t0) * 1e3
     return res

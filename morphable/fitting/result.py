@@ -34,6 +34,8 @@ class FitResult:
     cost : (N,) px^2, final sum of squared landmark residuals per frame
     landmark_std_px : (N,) float64, the landmark noise (px) the fit assumed for each frame
         (estimated for ``"auto"``: one value per shared identity, else per frame)
+    model_std_mm : (N,) float64, the model's landmark error (mm) the fit assumed for each frame
+        (a detector's is larger than an annotation's)
     """
 
     model: object
@@ -51,6 +53,7 @@ class FitResult:
     cost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     dtype: object = np.float64
     landmark_std_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    model_std_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_frames(self) -> int:
@@ -84,6 +87,7 @@ class FitResult:
             f = {"image": None if images[i] is None else str(images[i]),
                  "landmark_rmse_px": float(self.landmark_rmse_px[i]),
                  "landmark_std_px": float(self.landmark_std_px[i]) if len(self.landmark_std_px) else None,
+                 "model_std_mm": float(self.model_std_mm[i]) if len(self.model_std_mm) else None,
                  "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll,
                  "translation": [float(x) for x in cam.translation], "camera": cam.kind,
                  "image_size": list(cam.image_size),
