@@ -49,7 +49,7 @@ from tqdm import tqdm
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.metrics import CROP_RADIUS_MM, compare_to_scan, submesh
 
-from .scans import UNITS, Scan, load_scan, model_scan, photo_colors
+from .scans import UNITS, Scan, load_scan, model_scan, outer_skin, photo_colors
 from .videos import CONDITIONS, sample_frames, synthetic_video
 
 __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "detector_error",
@@ -89,22 +89,16 @@ class Reconstruction:
     n_model_vertices: int = 0
 
 
-# the skin of models that also hold eyeballs, teeth, a mouth interior (ICT)
-SKIN_SEGMENTS = ("face", "head_neck")
-
-
 def _reconstruction(model, vertices, seconds, n_frames, info=None) -> Reconstruction:
-    """Package a model-frame mesh: landmarks from the model's ids, skin only when the model
-    says which vertices are skin (the scan has no eyeballs or teeth to compare with)."""
+    """Package a model-frame mesh: landmarks from the model's ids, its outer skin only
+    (:func:`evaluation.scans.outer_skin`: a scan has no eyeballs, teeth or nostrils' insides)."""
     lm = np.full((68, 3), np.nan)
     ok = model.landmark_ids >= 0
     lm[ok] = vertices[model.landmark_ids[ok]]
     tri = model.triangles
     ids = np.arange(model.n_vertices)
-    skin = [model.segments[k] for k in SKIN_SEGMENTS if k in model.segments]
-    if skin:
-        keep = np.zeros(model.n_vertices, dtype=bool)
-        keep[np.concatenate(skin)] = True
+    keep = outer_skin(model)
+    if not keep.all():
         ids, tri = submesh(tri, keep)
     return Reconstruction(vertices[ids], tri, lm, seconds, n_frames, dict(info or {}), ids,
                           model.n_vertices)

@@ -39,8 +39,9 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
                 pose: str = "landmarks"):
     """Coefficients fitting ``model`` to the scan surface -> identity (K,), expression (E,).
 
-    Each round pairs every model vertex within ``radius_mm`` of the nose tip with its nearest
-    scan vertex (closer than ``max_distance_mm``) and solves the point-to-plane equations
+    Each round pairs every outer-skin vertex of the model (:func:`evaluation.scans.outer_skin`)
+    within ``radius_mm`` of the nose tip with its nearest scan vertex (closer than
+    ``max_distance_mm``) and solves the point-to-plane equations
     ``n . (mean + A alpha + B beta - p) = 0`` (the scan moved into the model's frame) by
     least squares with ``prior_weight (|alpha|^2 + |beta|^2)`` (mm^2 units).
 
@@ -67,6 +68,8 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
     from morphable.metrics import Similarity, align_landmarks
     from morphable.normals import vertex_normals
 
+    from .scans import outer_skin
+
     if pose not in ("landmarks", "joint"):
         raise InputError(f"pose: expected 'landmarks' or 'joint', got {pose!r}")
     ids = np.asarray(model.landmark_ids)
@@ -86,13 +89,15 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
         lower[P + K:], upper[P + K:] = 0.0, 1.0
     ridge = np.sqrt(prior_weight) * np.eye(P + K + E)[P:]
     coeffs = np.zeros(K + E)
+    # only the outer skin can meet the scan: teeth behind the lips would pull them inwards
+    skin = np.flatnonzero(outer_skin(model))
     to_model = align_landmarks(scan.landmarks[ok], mean[ids[ok]], scale=False)
     for _ in range(iterations):
         v = model.vertices(identity=coeffs[:K], expression=coeffs[K:] if E else None)
         if not joint:
             to_model = align_landmarks(scan.landmarks[ok], v[ids[ok]])
         S, Sn = to_model.apply(scan.vertices), normals @ to_model.rotation.T
-        sel = np.flatnonzero(np.linalg.norm(v - v[ids[30]], axis=1) < radius_mm)
+        sel = skin[np.linalg.norm(v[skin] - v[ids[30]], axis=1) < radius_mm]
         d, j = cKDTree(S).query(v[sel])
         sel, j = sel[d < max_distance_mm], j[d < max_distance_mm]
         rows = np.einsum("vi,kvi->vk", Sn[j], basis[:, sel])

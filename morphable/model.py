@@ -12,7 +12,11 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["MorphableModel"]
+__all__ = ["MorphableModel", "SKIN_SEGMENTS"]
+
+SKIN_SEGMENTS = ("face", "head_neck")
+"""Segments that make up a model's outer skin, when it also holds eyeballs, teeth and a mouth
+interior (ICT FaceKit)."""
 
 
 def _as_coefficients(coeffs, n_modes: int, what: str, dtype) -> np.ndarray | None:
@@ -209,6 +213,19 @@ class MorphableModel:
         except ValueError:
             raise InputError(f"{self.name}: no expression {name!r}; choose from "
                              f"{', '.join(self.expression_names) or '(none)'}") from None
+
+    def skin_vertices(self) -> np.ndarray:
+        """(n,) int, sorted: the vertices of the outer skin, what a scan of the face can be
+        compared with — the :data:`SKIN_SEGMENTS` the model names (ICT: not its eyeballs,
+        teeth, gums or mouth interior), else every vertex.
+
+        >>> m = MorphableModel.from_arrays(mean=np.zeros((4, 3)), triangles=[[0, 1, 2]],
+        ...                                segments={"face": [0, 1], "teeth": [2, 3]})
+        >>> m.skin_vertices()
+        array([0, 1])
+        """
+        skin = [self.segments[k] for k in SKIN_SEGMENTS if k in self.segments]
+        return np.unique(np.concatenate(skin)) if skin else np.arange(self.n_vertices)
 
     # --- evaluation -------------------------------------------------------------------
     def vertices(self, identity=None, expression=None, dtype=np.float64) -> np.ndarray:
