@@ -327,17 +327,19 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
         landmarks[lms[fill]] = interpolate_arc(P, arc, at)[fill]
 
 
+MIN_OPEN = 0.1
+"""Share of directions from a skin vertex that must reach open space for :func:`outer_skin`."""
 _OUTER: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
-def outer_skin(model, min_open: float = 0.1) -> np.ndarray:
+def outer_skin(model) -> np.ndarray:
     """(V,) bool: the vertices a scan of the face can have — the model's skin
     (:meth:`~morphable.model.MorphableModel.skin_vertices`) and, for a model with an inside
     (eyeballs, teeth: ICT), only the skin of its mean face that is not in a cavity: from a
-    vertex at least ``min_open`` of 64 directions spread over the sphere reach open space (a
-    flat patch: half of them). This leaves out the inside of the nostrils, between the lips and
-    the ear's folds (on james: 10 % of ICT's skin, and a third of its mean face's error in the
-    crop came from the nostrils). Read-only, cached per model."""
+    vertex at least :data:`MIN_OPEN` of 64 directions spread over the sphere reach open space
+    (a flat patch: half of them). This leaves out the inside of the nostrils, between the lips
+    and the ear's folds (10 % of ICT's skin; on james the nostrils' insides made a third of the
+    ICT mean face's error in the crop). Read-only, cached per model."""
     if model in _OUTER:
         return _OUTER[model]
     keep = np.zeros(model.n_vertices, dtype=bool)
@@ -361,7 +363,7 @@ def outer_skin(model, min_open: float = 0.1) -> np.ndarray:
         for d in directions:
             rays = np.concatenate([start, np.broadcast_to(d, v.shape)], 1).astype(np.float32)
             free += np.isinf(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
-        keep[ids[free / len(directions) < min_open]] = False
+        keep[ids[free / len(directions) < MIN_OPEN]] = False
     keep.flags.writeable = False
     _OUTER[model] = keep
     return keep

@@ -47,8 +47,8 @@ DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha":
 """Loss weights of :func:`refine`; landmark residuals are in pixels of the renderer
 resolution, photometric ones in [0, 1] intensity. ``lmk`` is the weight of annotated
 landmarks; a frame the landmark fit gave a larger model error (detected landmarks,
-``DETECTED_MODEL_STD_MM``) has it scaled down by its landmark variance (:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4
-validation faces (``neural.ablate.held_out_faces(4, seed=777)``, not the ablation's): mean
+``DETECTED_MODEL_STD_MM``) has it scaled down by its landmark variance
+(:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4 validation faces (``neural.ablate.held_out_faces(4, seed=777)``, not the ablation's): mean
 vertex error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
 alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
 1e-3: 2.99 / 2.88 mm (chosen). Moving only the appearance for the first 50 steps changed
@@ -69,7 +69,7 @@ def landmark_trust(fit, frame: int = 0) -> float:
     """How much the landmark fit trusted frame ``frame``'s landmarks relative to annotated ones:
     ``(s^2 + (k m_0)^2) / (s^2 + (k m)^2)`` with ``s`` its landmark noise (px), ``m`` its model
     error (mm; ``m_0`` = ``MODEL_STD_MM``, annotations) and ``k`` the image scale at the face
-    (px/mm). 1 for annotated landmarks, about 0.03 for detected ones (10 mm) at 3 px/mm; 1 when
+    (px/mm). 1 for annotated landmarks, about 0.02 for detected ones (10 mm) at 3 px/mm; 1 when
     the fit does not record them. A detector's errors are face-shaped and shared by a video's
     frames: the refinement must not pull the face onto them harder than the fit did."""
     from morphable.fitting.landmark_fit import MODEL_STD_MM
