@@ -29,7 +29,7 @@ reports, per method and condition, the mean over the subjects::
         --methods ours ours-independent eos mean-face --report reports/florence_ict.json
 
 or subjects of the fitted model itself with a landmark definition error added
-(``--synthetic-scan sfm --definition-noise 2.5``). With ``--detect`` their frames are rendered
+(``--synthetic-scan sfm --definition-noise 2.5``); ``--expression-std`` gives them expressions. With ``--detect`` their frames are rendered
 and dlib finds the landmarks; ``--appearance PHOTO ...`` dresses the subjects in the colours of
 photos of faces (:func:`evaluation.scans.photo_colors`), without which a detector sees clay.
 """
@@ -442,10 +442,12 @@ AVERAGED = ("mean_mm", "median_mm", "s_per_frame", "point_to_surface_mm", "scan_
 
 def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, seed: int = 0,
                     scan_seed: int = 100, log=None, progress: bool = False,
-                    definition_mm: float = 0.0, appearances=(), **kwargs):
+                    definition_mm: float = 0.0, expression_std: float = 0.0, appearances=(),
+                    **kwargs):
     """:func:`run_protocol` on ``n_scans`` subjects sampled from ``scan_model``
     (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...,
-    ``definition_mm`` of landmark definition error added to their landmarks; ``appearances``:
+    ``definition_mm`` of landmark definition error added to their landmarks, expressions of
+    ``expression_std`` — 0: neutral); ``appearances``:
     (name, (V, 3) vertex colours) pairs, :func:`evaluation.scans.photo_colors`, worn in turn
     by the subjects in rendered frames).
 
@@ -460,7 +462,7 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
         raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
     appearances = list(appearances)
     scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm,
-                        colors=appearances[i % len(appearances)][1] if appearances else None)
+                        expression_std=expression_std, colors=appearances[i % len(appearances)][1] if appearances else None)
              for i in range(n_scans))
     runs = (run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)[0]
             for scan in scans)
@@ -469,6 +471,7 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
                       "seeds": [scan_seed + i for i in range(n_scans)],
                       "landmarks": f"the {scan_model.name} landmark vertices"
                       + (f" with {definition_mm:g} mm of definition error" if definition_mm else ""),
+                      "expression_std": expression_std,
                       "appearance": ([f"vertex colours of {name}" for name, _ in appearances]
                                      or "untextured (shaded grey)"),
                       "std_mm": "standard deviation of the per-subject means"}
@@ -596,6 +599,9 @@ def _parser():
     p.add_argument("--definition-noise", type=float, default=0.0, metavar="MM",
                    help="--synthetic-scan: landmark definition error added to the subjects' "
                         "landmarks, mm per coordinate (jaw points: twice that along the jaw)")
+    p.add_argument("--expression-std", type=float, default=0.0, metavar="S",
+                   help="--synthetic-scan: subjects with an expression: blendshape weights "
+                        "|N(0, S)| clipped to 1, or PCA coefficients N(0, S); default neutral")
     p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
     p.add_argument("--methods", nargs="+", default=["ours", "eos", "mean-face"])
     p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
@@ -621,6 +627,9 @@ def _parser():
                    help="focal length of the camera of --frames-dir, px (default: unknown)")
     p.add_argument("--model-std", type=float,
                    help="ours: per-frame model landmark error, mm (default: the fitter's)")
+    p.add_argument("--expression-weight", type=float,
+                   help="ours: weight of the expression prior (default 1: the fitter's, "
+                        "morphable.fitting.landmark_fit.expression_precision)")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
@@ -670,6 +679,8 @@ def main(argv=None) -> int:
         scan_model = load_model(args.synthetic_scan)
         if not (np.isfinite(args.definition_noise) and args.definition_noise >= 0):
             raise InputError(f"--definition-noise {args.definition_noise}: must be >= 0")
+        if not (np.isfinite(args.expression_std) and args.expression_std >= 0):
+            raise InputError(f"--expression-std {args.expression_std}: must be >= 0")
         for bad in ("frames_dir", "heatmaps"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
@@ -681,11 +692,14 @@ def main(argv=None) -> int:
                              "the gar method")
     elif args.appearance:
         raise InputError("--appearance applies to --synthetic-scan (a scan has its own texture)")
+    elif args.expression_std:
+        raise InputError("--expression-std applies to --synthetic-scan")
     else:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
     ours = {k: v for k, v in (("n_iterations", args.iterations),
                               ("definition_std_mm", args.definition_std),
                               ("model_std_mm", args.model_std),
+                              ("expression_weight", args.expression_weight),
                               ("camera", None if args.camera == "auto" else args.camera))
             if v is not None}
     if args.focal_px is not None and not (np.isfinite(args.focal_px) and args.focal_px > 0):
@@ -706,6 +720,7 @@ def main(argv=None) -> int:
             looks = [(Path(p).name, photo_colors(scan_model, p)) for p in args.appearance or ()]
             report = run_model_scans(scan_model, model, args.methods, args.conditions,
                                      args.n_scans, args.seed, definition_mm=args.definition_noise,
+                                     expression_std=args.expression_std,
                                      appearances=looks, n_sampled=args.frames, detect=args.detect,
                                      n_frames=args.video_frames, **common)
         elif args.n_videos != 1:

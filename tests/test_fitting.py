@@ -337,6 +337,26 @@ def test_ict_model(ict):
     assert res.vertices(0).shape == (ict.n_vertices, 3)
 
 
+def test_expression_prior_scales_with_the_number_of_blendshapes(ict, sfm):
+    """53 blendshapes share an expression the SFM splits into 6: each weight gets 53 / 6 of
+    the prior. A neutral ICT face then keeps its shape in the identity, not in blendshapes."""
+    from morphable.fitting.landmark_fit import expression_precision
+
+    assert expression_precision(sfm) == 1.0
+    assert expression_precision(ict) == pytest.approx(53 / 6)
+    rng = np.random.default_rng(5)
+    alpha = rng.standard_normal(ict.n_identity)
+    lms = np.stack([synth(ict, yaw=y, identity=alpha)[0] for y in (-20, 0, 20)])
+    lms += rng.normal(0.0, 1.0, lms.shape)
+    face = ict.segments["narrow_face"]
+    err, energy = [], []
+    for w in (1.0, 1.0 / expression_precision(ict)):     # now, and the SFM's weight per shape
+        res = fit_landmarks(ict, lms, (512, 512), expression_weight=w)
+        err.append(aligned_error(res.neutral_vertices()[face], ict.vertices(alpha)[face]))
+        energy.append((res.expression ** 2).sum(1).mean())
+    assert energy[0] < energy[1] / 3 and err[0] < err[1], (err, energy)
+
+
 # --- stability ---------------------------------------------------------------------------
 @pytest.mark.parametrize("yaw,pitch,roll", [(90, 0, 0), (-90, 0, 0), (0, 60, 0), (0, -60, 0),
                                             (10, 0, 180), (0, 0, -150)])

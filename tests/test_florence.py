@@ -356,8 +356,18 @@ def test_command_on_synthetic_subjects(tmp_path):
     cell = rep["methods"]["mean-face"]["outdoor"]
     assert len(cell["per_scan_mm"]) == 2 and 0.5 < cell["mean_mm"] < 5.0
     assert cell["per_scan_mm"][0] != cell["per_scan_mm"][1]
+    # the same subjects with an expression are other faces (the mean face does worse)
+    r = run_cli("--synthetic-scan", "ict", "--n-scans", "2", "--methods", "mean-face",
+                "--conditions", "outdoor", "--frames", "2", "--video-frames", "4",
+                "--expression-std", "0.3", "--report", report, "--quiet")
+    assert r.returncode == 0, r.stderr
+    smiling = json.loads(report.read_text())
+    assert smiling["scan"]["expression_std"] == 0.3
+    assert smiling["methods"]["mean-face"]["outdoor"]["mean_mm"] > cell["mean_mm"]
     r = run_cli("--synthetic-scan", "ict", "--scan", "x.obj", "--report", tmp_path / "s.json")
     assert r.returncode == 2 and "either --scan" in r.stderr and not (tmp_path / "s.json").exists()
+    r = run_cli("--synthetic-scan", "ict", "--expression-std=-1", "--report", tmp_path / "s.json")
+    assert r.returncode == 2 and "--expression-std -1.0: must be >= 0" in r.stderr
 
 
 def test_detector_on_synthetic_subjects(tmp_path, data_dir):

@@ -22,7 +22,9 @@ Cost (per fit)::
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
 with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
-``prior_weight = 1`` (for jaw points ``uv - y`` is its component across the outline). Only
+``prior_weight = 1`` (for jaw points ``uv - y`` is its component across the outline); for
+blendshape weights, ``expression_weight`` is multiplied by :func:`expression_precision`
+(E / 6 for E blendshapes). Only
 the landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
 estimates the detector's noise from the residuals (MacKay's evidence approximation: the
 normalised residuals of a fit add up to their degrees of freedom, the observations minus the
@@ -62,8 +64,8 @@ from .linear import gram_hessian, project_rows, solve_expression, solve_identity
 from .pose import estimate_affine_pose, project, rotate
 from .result import FitResult
 
-__all__ = ["fit_landmarks", "frame_model_std", "DEFINITION_STD_MM", "MODEL_STD_MM",
-           "DETECTED_MODEL_STD_MM"]
+__all__ = ["fit_landmarks", "frame_model_std", "expression_precision", "DEFINITION_STD_MM",
+           "MODEL_STD_MM", "DETECTED_MODEL_STD_MM", "BLENDSHAPES_REF"]
 
 AUTO_ROUNDS = 1
 """Re-estimations of the landmark noise for ``landmark_std_px="auto"`` (each one refits)."""
@@ -100,6 +102,24 @@ inner points and 5 mm for the jaw, half of it shared by a video's frames). Chose
 validation subjects wearing photos' colours (SFM and ICT FaceKit, 8 each, ``python -m
 evaluation.florence --synthetic-scan ict --detect --appearance ...``): 8-12 mm did best, 1.5 mm
 (:data:`MODEL_STD_MM`, for annotated landmarks) worst; the held-out scan was not used."""
+
+
+BLENDSHAPES_REF = 6
+"""Blendshapes of the model whose expression prior weight 1 was chosen on (the SFM's six)."""
+
+
+def expression_precision(model) -> float:
+    """The expression prior's weight per coefficient at ``expression_weight=1``: 1 for
+    expression coefficients in standard deviations (PCA), ``E / 6`` for a model of ``E``
+    blendshape weights. A face's expression is split over however many blendshapes the model
+    has, so each weight of a finer set carries less of it: the prior holds the sum of squares
+    of a frame's weights about constant (SFM, 6 blendshapes: 1; ICT FaceKit, 53: 8.8). Chosen
+    on validation subjects with and without expressions (SFM and ICT FaceKit subjects fitted
+    with ICT FaceKit, ``expression_weight`` 1 / 3 / 9 / 30: 9 did best on the expressive ones,
+    1 worst everywhere; SFM fits hardly change between 0.3 and 9)."""
+    if model.expression_kind == "blendshapes" and model.n_expression:
+        return model.n_expression / BLENDSHAPES_REF
+    return 1.0
 
 
 def frame_model_std(detected) -> np.ndarray:
@@ -674,7 +694,8 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         Fit only the first modes (None = all).
     prior_weight, expression_weight : float >= 0
         Weights of ``|alpha|^2`` and ``|beta|^2`` (1 = the Gaussian prior at its Bayesian
-        weight); 0 is allowed and stays finite (a tiny ridge remains).
+        weight; for blendshapes, ``|beta|^2`` is weighted by :func:`expression_precision`
+        too); 0 is allowed and stays finite (a tiny ridge remains).
     robust : None or "huber"
         Huber loss on the normalised landmark residuals (threshold ``huber_k``).
     shared_identity : bool
@@ -773,7 +794,8 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                        f"(given and defined on model {model.name}), need at least 4")
     pb = _Problem(bank, y, usable, principal, focal, perspective, K, E, shared_identity,
                   model.expression_kind == "blendshapes", float(prior_weight),
-                  float(expression_weight), 1.0 if auto_std else float(landmark_std_px),
+                  float(expression_weight) * expression_precision(model),
+                  1.0 if auto_std else float(landmark_std_px),
                   model_std_mm, robust, float(huber_k), definition_std_mm)
     with np.errstate(all="ignore"):
         st = _linear_stage(pb, n_linear)
