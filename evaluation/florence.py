@@ -29,9 +29,10 @@ reports, per method and condition, the mean over the subjects::
         --methods ours ours-independent eos mean-face --report reports/florence_ict.json
 
 or subjects of the fitted model itself with a landmark definition error added
-(``--synthetic-scan sfm --definition-noise 2.5``); ``--expression-std`` gives them expressions. With ``--detect`` their frames are rendered
-and dlib finds the landmarks; ``--appearance PHOTO ...`` dresses the subjects in the colours of
-photos of faces (:func:`evaluation.scans.photo_colors`), without which a detector sees clay.
+(``--synthetic-scan sfm --definition-noise 2.5``); ``--expression-std`` gives them
+expressions. With ``--detect`` their frames are rendered and dlib finds the landmarks;
+``--appearance PHOTO ...`` dresses the subjects in the colours of photos of faces
+(:func:`evaluation.scans.photo_colors`), without which a detector sees clay.
 """
 from __future__ import annotations
 
@@ -462,7 +463,8 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
         raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
     appearances = list(appearances)
     scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm,
-                        expression_std=expression_std, colors=appearances[i % len(appearances)][1] if appearances else None)
+                        expression_std=expression_std,
+                        colors=appearances[i % len(appearances)][1] if appearances else None)
              for i in range(n_scans))
     runs = (run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)[0]
             for scan in scans)
