@@ -187,20 +187,23 @@ class Camera:
         """(..., N) distance along the viewing direction, mm."""
         return -self.to_camera(points)[..., 2]
 
+    def px_per_mm(self, points) -> np.ndarray:
+        """(...,) image scale at world points (..., 3) mm, px/mm: ``scale`` (affine) or
+        ``focal / depth`` (perspective; NaN at depth <= 0)."""
+        if self.kind == "affine":
+            return np.full(np.shape(points)[:-1], float(self.scale))
+        d = self.depth(points)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(d > 0, self.focal / np.where(d > 0, d, 1.0), np.nan)
+
     def project(self, points) -> np.ndarray:
         """(..., N, 3) world mm -> (..., N, 2) pixels.
 
         Perspective points behind the camera (depth <= 0) give NaN pixels.
         """
         Xc = self.to_camera(points)
-        if self.kind == "affine":
-            k = self.scale
-            x, y = k * Xc[..., 0], k * Xc[..., 1]
-        else:
-            d = -Xc[..., 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                k = np.where(d > 0, self.focal / np.where(d > 0, d, 1.0), np.nan)
-            x, y = k * Xc[..., 0], k * Xc[..., 1]
+        k = self.px_per_mm(points)
+        x, y = k * Xc[..., 0], k * Xc[..., 1]
         return np.stack([self.principal[0] + x, self.principal[1] - y], -1)
 
     def rays(self, width=None, height=None, supersample: int = 1):

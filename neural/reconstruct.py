@@ -78,13 +78,9 @@ def landmark_trust(fit, frame: int = 0) -> float:
     if not len(m):
         return 1.0
     s2 = float(fit.landmark_std_px[frame]) ** 2 if len(fit.landmark_std_px) else 1.0
-    cam = fit.cameras[frame]
-    if cam.kind == "affine":
-        k = cam.scale
-    else:
-        ids = np.asarray(fit.landmark_vertices[frame])
-        pts = fit.model.vertices_at(ids[ids >= 0], fit.frame_identity[frame], fit.expression[frame])
-        k = cam.focal / float(np.mean(cam.depth(pts)))
+    ids = np.asarray(fit.landmark_vertices[frame])
+    pts = fit.model.vertices_at(ids[ids >= 0], fit.frame_identity[frame], fit.expression[frame])
+    k = float(fit.cameras[frame].px_per_mm(pts.mean(0)))
     return float((s2 + (k * MODEL_STD_MM) ** 2) / (s2 + (k * m[frame]) ** 2))
 
 

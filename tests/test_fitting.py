@@ -47,6 +47,18 @@ def test_affine_pose_recovers_a_known_camera(sfm):
     np.testing.assert_allclose(t[0, :2], cam.translation[:2], atol=1e-4)
 
 
+def test_camera_image_scale():
+    """px_per_mm is the projection's local scale: a 1 mm step across the view moves the point
+    by that many pixels; NaN behind a pinhole camera."""
+    for kind in ("affine", "perspective"):
+        cam = Camera.looking_at_face((512, 512), yaw=20, kind=kind, distance_mm=500.0)
+        p = np.array([[10.0, -20, 30], [0, 0, 0]])
+        step = cam.rotation.T @ np.array([1e-3, 0, 0])       # along the camera's x axis
+        moved = np.linalg.norm(cam.project(p + step) - cam.project(p), axis=1) / 1e-3
+        np.testing.assert_allclose(cam.px_per_mm(p), moved, rtol=1e-5)
+    assert np.isnan(cam.px_per_mm(np.array([0.0, 0.0, 600.0]) @ cam.rotation))
+
+
 @pytest.mark.parametrize("perspective", [False, True])
 def test_projection_jacobian_matches_finite_differences(perspective):
     rng = np.random.default_rng(0)

@@ -24,10 +24,10 @@ Cost (per fit)::
 with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
 ``prior_weight = 1`` (for jaw points ``uv - y`` is its component across the outline; for
 blendshape weights ``expression_weight`` is multiplied by :func:`expression_precision`, E / 6
-for E blendshapes). Only the landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
-estimates the detector's noise from the residuals (MacKay's evidence approximation: the
-normalised residuals of a fit add up to their degrees of freedom, the observations minus the
-trace of the hat matrix) and refits.
+for E blendshapes). Only the landmark rows of the model are evaluated, never the full mesh.
+``landmark_std_px="auto"`` estimates the detector's noise from the residuals (MacKay's
+evidence approximation: the normalised residuals of a fit add up to their degrees of freedom,
+the observations minus the trace of the hat matrix) and refits.
 
 Noise model. A landmark's 2D residual has three parts: the detector's noise
 (``landmark_std_px``, new in every frame), the model's per-frame error (``model_std_mm``), and
