@@ -151,17 +151,14 @@ def _visible(scene, camera: Camera, points, tol_mm: float = 4.0) -> np.ndarray:
     """(N,) bool: the first surface hit on the ray from the camera is (near) the point."""
     import open3d as o3d
 
+    d = -camera.view_directions(points)
     if camera.kind == "affine":
-        d = np.broadcast_to(camera.rotation.T @ np.array([0.0, 0.0, -1.0]), points.shape)
         back = 1e4
         origins = points - back * d
         expected = np.full(len(points), back)
     else:
-        centre = -camera.rotation.T @ camera.translation
-        d = points - centre
-        expected = np.linalg.norm(d, axis=1)
-        d = d / expected[:, None]
-        origins = np.broadcast_to(centre, points.shape)
+        origins = np.broadcast_to(camera.centre, points.shape)
+        expected = np.linalg.norm(points - camera.centre, axis=1)
     rays = np.concatenate([origins, d], 1).astype(np.float32)
     t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     return t >= expected - tol_mm

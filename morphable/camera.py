@@ -187,6 +187,20 @@ class Camera:
         """(..., N) distance along the viewing direction, mm."""
         return -self.to_camera(points)[..., 2]
 
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) world mm: the pinhole (perspective); for the affine camera, the point of its
+        axis at the camera plane."""
+        return -self.rotation.T @ self.translation
+
+    def view_directions(self, points) -> np.ndarray:
+        """(..., 3) unit vectors from world points (..., 3) towards the camera: the pinhole's
+        direction (perspective) or the camera's +z axis, the same for all (affine)."""
+        if self.kind == "affine":
+            return np.broadcast_to(self.rotation.T @ np.array([0.0, 0.0, 1.0]), np.shape(points))
+        d = self.centre - np.asarray(points, dtype=np.float64)
+        return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+
     def px_per_mm(self, points) -> np.ndarray:
         """(...,) image scale at world points (..., 3) mm, px/mm: ``scale`` (affine) or
         ``focal / depth`` (perspective; NaN at depth <= 0)."""
@@ -235,8 +249,7 @@ class Camera:
         yc = (self.principal[1] - v) / self.focal
         dc = np.stack([xc, yc, -np.ones_like(xc)], -1)
         dc /= np.linalg.norm(dc, axis=-1, keepdims=True)
-        centre = -Rt @ self.translation
-        return np.broadcast_to(centre, dc.shape).copy(), dc @ Rt.T
+        return np.broadcast_to(self.centre, dc.shape).copy(), dc @ Rt.T
 
     def to_dict(self) -> dict:
         """JSON-ready description (angles in degrees, mm, px)."""

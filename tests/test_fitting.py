@@ -57,6 +57,12 @@ def test_camera_image_scale():
         moved = np.linalg.norm(cam.project(p + step) - cam.project(p), axis=1) / 1e-3
         np.testing.assert_allclose(cam.px_per_mm(p), moved, rtol=1e-5)
     assert np.isnan(cam.px_per_mm(np.array([0.0, 0.0, 600.0]) @ cam.rotation))
+    # view directions lead to the pinhole (perspective) or along the camera's axis (affine)
+    d = cam.view_directions(p)
+    far = p + np.linalg.norm(cam.centre - p, axis=1, keepdims=True) * d
+    np.testing.assert_allclose(far, np.broadcast_to(cam.centre, p.shape), atol=1e-9)
+    axis = Camera.looking_at_face(yaw=20).view_directions(p)
+    np.testing.assert_allclose(axis, np.broadcast_to(cam.rotation[2], p.shape), atol=1e-12)
 
 
 @pytest.mark.parametrize("perspective", [False, True])

@@ -53,13 +53,7 @@ def vertex_colors(vertices, triangles, camera, image, symmetry=None, min_facing:
     if (W, H) != tuple(int(s) for s in camera.image_size):
         raise InputError(f"image is {W}x{H}, the camera's is "
                          f"{camera.image_size[0]}x{camera.image_size[1]}")
-    if camera.kind == "affine":
-        towards = np.broadcast_to(camera.rotation.T @ np.array([0.0, 0.0, 1.0]), v.shape)
-    else:
-        centre = -camera.rotation.T @ camera.translation
-        towards = centre - v
-        towards = towards / np.maximum(np.linalg.norm(towards, axis=1, keepdims=True), 1e-12)
-    facing = np.einsum("vi,vi->v", vertex_normals(v, t), towards)
+    facing = np.einsum("vi,vi->v", vertex_normals(v, t), camera.view_directions(v))
     uv = camera.project(v)
     depth = camera.depth(v)
     inside = (np.isfinite(uv).all(1) & (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5)
