@@ -190,7 +190,6 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         except ImportError as e:
             raise InputError(f"method {method}: morphable.fitting is not available ({e})") from None
         effort = _video_fit_options(effort, focal_px, detected)
-        camera = effort["camera"]
         t = time.perf_counter()
         res = fit_landmarks(model, lm, image_size, shared_identity=method == "ours", **effort)
         v = res.vertices().mean(0)
@@ -198,7 +197,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         return _reconstruction(model, v, dt, len(lm),
                                {"landmark_rmse_px": float(np.mean(res.landmark_rmse_px)),
                                 "landmark_std_px": float(np.mean(res.landmark_std_px)),
-                                "camera": camera})
+                                "camera": effort["camera"]})
     if method == "eos":
         from morphable import load_model
 

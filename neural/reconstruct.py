@@ -48,8 +48,9 @@ DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha":
 resolution, photometric ones in [0, 1] intensity. ``lmk`` is the weight of annotated
 landmarks; a frame the landmark fit gave a larger model error (detected landmarks,
 ``DETECTED_MODEL_STD_MM``) has it scaled down by its landmark variance
-(:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4 validation faces (``neural.ablate.held_out_faces(4, seed=777)``, not the ablation's): mean
-vertex error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
+(:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4 validation faces
+(``neural.ablate.held_out_faces(4, seed=777)``, not the ablation's): mean vertex error after
+100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
 alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
 1e-3: 2.99 / 2.88 mm (chosen). Moving only the appearance for the first 50 steps changed
 little (3.01 / 2.93 mm) and was not kept."""

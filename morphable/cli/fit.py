@@ -1,8 +1,9 @@
 """``morphable fit``: fit the model to the 68 landmarks of one or more images of a person.
 
-Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson``, one per image) or are detected with
-dlib (and then fitted with a detector's error, ``DETECTED_MODEL_STD_MM``). Writes the mesh (OBJ with UVs; with several images the shared identity without
-expression) and a JSON report; both are written only once the fit has succeeded.
+Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson``, one per image) or are
+detected with dlib (and then fitted with a detector's error, ``DETECTED_MODEL_STD_MM``). Writes
+the mesh (OBJ with UVs; with several images the shared identity without expression) and a JSON
+report; both are written only once the fit has succeeded.
 """
 from __future__ import annotations
 
