@@ -348,12 +348,11 @@ def outer_skin(model) -> np.ndarray:
         import open3d as o3d
 
         from morphable.normals import vertex_normals
-
-        from .videos import _scene
+        from morphable.raster.visibility import scene as raycasting_scene
 
         ids, tri = submesh(model.triangles, keep)
         v = np.asarray(model.mean, dtype=np.float64)[ids]
-        scene = _scene(v, tri)
+        scene = raycasting_scene(v, tri)
         start = v + 0.5 * vertex_normals(v, tri)     # just off the surface, not on it
         i = np.arange(64) + 0.5                       # a Fibonacci sphere of directions
         z, phi = 1.0 - 2.0 * i / len(i), np.pi * (1.0 + 5.0 ** 0.5) * i

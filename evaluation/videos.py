@@ -29,6 +29,7 @@ from morphable.camera import Camera
 from morphable.errors import InputError
 from morphable.landmarks import JAW
 from morphable.metrics import Similarity, align_landmarks
+from morphable.raster.visibility import scene as raycasting_scene
 
 __all__ = ["Condition", "CONDITIONS", "Video", "frontal_frame", "trajectory", "sample_frames",
            "project_landmarks", "synthetic_video", "render_frames", "detect_landmarks"]
@@ -164,15 +165,6 @@ def _visible(scene, camera: Camera, points, tol_mm: float = 4.0) -> np.ndarray:
     return t >= expected - tol_mm
 
 
-def _scene(vertices, triangles):
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(triangles, dtype=np.uint32)))
-    return scene
-
-
 class _Silhouette:
     """Candidate scan vertices for each jaw landmark: a horizontal band of the face from the
     landmark towards the midline and the front. Under a pose, the candidate farthest out in
@@ -228,7 +220,7 @@ def project_landmarks(scan, cameras, frame: Similarity, rng=None, sigma_px: floa
     rng = np.random.default_rng(rng)
     lm = np.asarray(scan.landmarks, dtype=np.float64)
     given = np.isfinite(lm).all(1)
-    scene = _scene(scan.vertices, scan.triangles)
+    scene = raycasting_scene(scan.vertices, scan.triangles)
     sil = _Silhouette(scan.vertices, lm, frame)
     centre = np.nanmean(lm, 0)
     lm0 = np.where(given[:, None], lm, 0.0)

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh"]
+__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene"]
 
 _MESHES: "list[_Mesh]" = []  # most recently used last
 _MESH_CACHE_SIZE = 4
@@ -397,17 +397,13 @@ def _window_rays(camera, x0, x1, y0, y1, s, z0):
     return rays
 
 
-def _window(camera, cam_points, width, height):
-    """Pixel rectangle (x0, x1, y0, y1), x1/y1 exclusive, that contains the projection."""
-    if camera.kind == "perspective" and (cam_points[:, 2] >= 0).any():
+def _window(camera, points, width, height):
+    """Pixel rectangle (x0, x1, y0, y1), x1/y1 exclusive, that contains the projection of the
+    world points (V, 3) mm."""
+    uv = camera.project(points)
+    if not np.isfinite(uv).all():
         return 0, width, 0, height  # points at or behind the camera: no finite bound
-    if camera.kind == "affine":
-        u = camera.principal[0] + camera.scale * cam_points[:, 0]
-        v = camera.principal[1] - camera.scale * cam_points[:, 1]
-    else:
-        k = camera.focal / -cam_points[:, 2]
-        u = camera.principal[0] + k * cam_points[:, 0]
-        v = camera.principal[1] - k * cam_points[:, 1]
+    u, v = uv[:, 0], uv[:, 1]
     # a pixel's samples reach half a pixel beyond its centre
     x0 = int(np.clip(np.floor(u.min() - 0.5), 0, width))
     x1 = int(np.clip(np.ceil(u.max() + 1.5), 0, width))
@@ -468,12 +464,13 @@ def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
     if Ws * Hs > _MAX_SAMPLES:
         raise InputError(f"{W}x{H} pixels with supersample {s} are {Ws * Hs} samples, more than "
                          f"the {_MAX_SAMPLES} this rasteriser takes at once")
-    pc = camera.to_camera(v.astype(np.float64, copy=False))
+    v64 = v.astype(np.float64, copy=False)
+    pc = camera.to_camera(v64)
     if (pc[:, 2] >= 0).all():
         raise InputError("mesh is entirely behind the camera (depth <= 0 for every vertex); "
                          "check the camera translation and rotation")
 
-    x0, x1, y0, y1 = _window(camera, pc, W, H)
+    x0, x1, y0, y1 = _window(camera, v64, W, H)
     z0 = pc[:, 2].max() + 1.0 if camera.kind == "affine" else 0.0
     rays = _window_rays(camera, x0, x1, y0, y1, s, z0)
     pixels, ids, weights, t_hit = cast_foreground(scene(v, t), rays)
