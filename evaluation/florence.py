@@ -123,6 +123,17 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
     return out
 
 
+def gar_refiner():
+    """:func:`neural.reconstruct.refine_frames`, or a one-line InputError when the neural
+    plugin is not installed (callers check before a long run)."""
+    try:
+        from neural.reconstruct import refine_frames
+    except ImportError as e:
+        raise InputError(f"method gar: the neural plugin is not installed ({e}); "
+                         "pip install -e '.[neural]'") from None
+    return refine_frames
+
+
 def reconstruct(method: str, model, landmarks, image_size, effort: dict | None = None,
                 peers: dict | None = None, images=None, focal_px=None,
                 scan: Scan | None = None, detected=None) -> Reconstruction:
@@ -214,14 +225,18 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     if method == "gar":
         if images is None:
             raise InputError("method gar: needs the video frames (synthetic videos render them)")
-        try:
-            from neural.reconstruct import refine_frames
-        except ImportError as e:
-            raise InputError(f"method gar: the neural plugin is not installed ({e}); "
-                             "pip install -e '.[neural]'") from None
+        refine_frames = gar_refiner()
+        if "gar" not in peers:          # loaded once, outside the timed fits (as eos' model)
+            import torch
+
+            from morphable.renderers import get_renderer
+
+            peers["gar"] = get_renderer("gar")
+            # torch's first optimizer imports its compiler (about 1 s): not part of a fit
+            torch.optim.Adam([torch.zeros(1, requires_grad=True)])
         t = time.perf_counter()
         # each frame starts from the landmark fit ours-independent makes of it
-        verts, reports = refine_frames(model, np.asarray(images)[usable], lm, "gar",
+        verts, reports = refine_frames(model, np.asarray(images)[usable], lm, peers["gar"],
                                        steps=int(effort.get("steps", 100)),
                                        fit_options=_video_fit_options({}, focal_px, detected))
         dt = time.perf_counter() - t
@@ -387,6 +402,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     for c in conditions:
         if c not in CONDITIONS:
             raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
+    if "gar" in methods:
+        gar_refiner()
     report = {"methods": {m: {} for m in methods}, "videos": {}}
     errors = {}
     peers = peers if peers is not None else {}

@@ -1,7 +1,7 @@
 """Error against run time: the Florence protocol at several effort levels per method.
 
 Each method runs at a few effort levels (frames per video 1/3/5/10, iterations, identity
-modes) on every condition; each level gives one point (seconds per video, mean
+modes, gar's refinement steps) on every condition; each level gives one point (seconds per video, mean
 point-to-plane error over the conditions). Writes ``reports/error_vs_runtime.png`` (one curve
 per method), ``.json`` and ``.md``::
 
@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from morphable.errors import FitError, InputError, one_line_errors
 
-from .florence import evaluate, reconstruct, video_landmarks
+from .florence import evaluate, gar_refiner, reconstruct, video_landmarks
 from .scans import UNITS, load_scan
 from .videos import CONDITIONS
 
@@ -38,6 +38,8 @@ EFFORTS = {
     "eos": [{"label": f"{k} frames, {it} iterations", "frames": k, "settings": {"num_iterations": it}}
             for it in (1, 5) for k in FRAMES],
     "mean-face": [{"label": "no fitting", "frames": 1, "settings": {}}],
+    "gar": [{"label": f"{k} frames, {s} steps", "frames": k, "settings": {"steps": s}}
+            for k, s in ((5, 25), (5, 50), *((k, 100) for k in FRAMES))],
 }
 """Effort levels per method: frames per video and the method's own settings."""
 
@@ -57,7 +59,11 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
     frames = sorted({e["frames"] for m in methods for e in EFFORTS[m]})
     if max(frames) > video_frames:
         raise InputError(f"--video-frames {video_frames}: effort levels need {max(frames)} frames")
-    videos = {(c, k): video_landmarks(scan, model, c, k, video_frames, seed)
+    if "gar" in methods:
+        gar_refiner()       # before minutes of other methods' fits
+    # gar refines the rendered frames themselves
+    videos = {(c, k): video_landmarks(scan, model, c, k, video_frames, seed,
+                                      with_frames="gar" in methods)
               for c in conditions for k in frames}
     points, peers = [], {}
     bar = tqdm(total=sum(len(EFFORTS[m]) for m in methods) * len(conditions), disable=not progress,
@@ -67,10 +73,10 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
             per, secs = {}, []
             for c in conditions:
                 bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
-                lm, size, desc, _ = videos[(c, effort["frames"])]
+                lm, size, desc, images = videos[(c, effort["frames"])]
                 try:
-                    rec = reconstruct(m, model, lm, size, effort["settings"], peers,
-                                      focal_px=desc.get("focal_px"))
+                    rec = reconstruct(m, model, lm, size, effort["settings"], peers, images,
+                                      desc.get("focal_px"))
                     cell, _ = evaluate(rec, scan)
                 except FitError as e:
                     per[c] = {"error": str(e)}
@@ -133,7 +139,7 @@ def main(argv=None) -> int:
     p.add_argument("--scan", default=str(_DATA / "james.obj"))
     p.add_argument("--scan-landmarks", default=str(_DATA / "james.ljson"))
     p.add_argument("--scan-units", default="auto", choices=[*UNITS, "auto"])
-    p.add_argument("--methods", nargs="+", default=["ours", "ours-independent", "eos", "mean-face"])
+    p.add_argument("--methods", nargs="+", default=list(EFFORTS))
     p.add_argument("--conditions", nargs="+", default=list(CONDITIONS))
     p.add_argument("--model", default="sfm")
     p.add_argument("--seed", type=int, default=0)

@@ -429,6 +429,21 @@ def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
         report.run(james, sfm, ["eos"], ["outdoor"], video_frames=2)
 
 
+def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
+    from evaluation import report
+
+    monkeypatch.setitem(report.EFFORTS, "gar", [
+        {"label": f"1 frame, {s} steps", "frames": 1, "settings": {"steps": s}} for s in (1, 4)])
+    monkeypatch.setitem(report.EFFORTS, "ours-independent", [
+        {"label": "1 frames", "frames": 1, "settings": {}}])
+    result = report.run(james, sfm, ["gar", "ours-independent"], ["outdoor"], video_frames=6)
+    gar = {p["label"]: p for p in result["points"] if p["method"] == "gar"}
+    start = next(p for p in result["points"] if p["label"] == "1 frames")
+    # the rendered frame refined from the fit ours-independent makes of it: more steps, more time
+    assert 0 < gar["1 frame, 1 steps"]["s_per_video"] < gar["1 frame, 4 steps"]["s_per_video"]
+    assert all(abs(p["mean_mm"] - start["mean_mm"]) < 0.5 for p in gar.values())
+
+
 def test_detected_landmarks_on_rendered_frames(james, sfm):
     pytest.importorskip("dlib")
     from evaluation.florence import video_landmarks
@@ -484,10 +499,10 @@ def test_real_frames_folder(james, sfm, tmp_path):
         run_protocol(james, sfm, ["mean-face"], ["outdoor"], n_sampled=2, frames_dir=tmp_path / "james")
 
 
-def test_gar_method_refines_rendered_frames(james, sfm, tmp_path, monkeypatch):
-    """--methods gar: each rendered frame fitted, refined through the GAR, averaged."""
+@pytest.fixture
+def random_gar(tmp_path, monkeypatch):
+    """An untrained tiny GAR as the renderer's weights (fast; the committed one is not needed)."""
     torch = pytest.importorskip("torch")
-    from evaluation.florence import run_protocol
     from neural.config import get_config
     from neural.gar import Generator
 
@@ -495,6 +510,12 @@ def test_gar_method_refines_rendered_frames(james, sfm, tmp_path, monkeypatch):
     G = Generator(get_config("tiny"))
     torch.save({"config": G.config.to_dict(), "G": G.state_dict()}, tmp_path / "g.pt")
     monkeypatch.setenv("MORPHABLE_GAR_WEIGHTS", str(tmp_path / "g.pt"))
+
+
+def test_gar_method_refines_rendered_frames(james, sfm, random_gar):
+    """--methods gar: each rendered frame fitted, refined through the GAR, averaged."""
+    from evaluation.florence import run_protocol
+
     report, errors = run_protocol(james, sfm, ["gar", "ours-independent"], ["outdoor"],
                                   n_sampled=2, n_frames=6, efforts={"gar": {"steps": 2}})
     gar, ours = report["methods"]["gar"]["outdoor"], report["methods"]["ours-independent"]["outdoor"]
