@@ -16,9 +16,10 @@ prints a table (method x condition, mean ± std of the point-to-plane error in m
 frame) and writes the JSON report plus the per-vertex errors (``.npz`` beside the report).
 One synthetic video per condition is one draw of a head-pose trajectory and of landmark noise;
 ``--n-videos 5`` runs five draws (seeds ``--seed`` to ``--seed + 4``) and gives the mean and
-standard deviation over them. Method ``surface-fit`` is no reconstruction from the frames but
-the model fitted to the scan's surface itself: the error no method with that model can go
-below.
+standard deviation over them. Methods ``surface-fit`` and ``landmarks-3d`` are no
+reconstructions from the frames but the model fitted to the scan itself: to its surface (the
+error no method with that model can go below), or to its own 3D landmarks (what the
+landmarks say about the face's shape under the model, without images).
 
 A validation set that is not a real scan (for choosing settings without touching the held-out
 scans): ``--synthetic-scan ict --n-scans 8`` samples subjects from another model
@@ -58,7 +59,7 @@ __all__ = ["METHODS", "Reconstruction", "reconstruct", "evaluate", "detector_err
 
 MIN_LANDMARKS = 10
 """Frames with fewer landmarks are dropped before reconstruction."""
-METHODS = ("ours", "ours-independent", "eos", "mean-face", "surface-fit", "gar")
+METHODS = ("ours", "ours-independent", "eos", "mean-face", "surface-fit", "landmarks-3d", "gar")
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
           "nose tip to the tangent plane of the nearest scan vertex, after alignment")
 
@@ -156,10 +157,13 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         do gar's starting fits (always); None = an affine camera. eos always fits its affine
         camera. Ours and ours-independent estimate the landmark noise
         (``landmark_std_px="auto"``) unless ``effort`` sets it; gar's starting fits always do.
-    scan : the scan itself, for ``surface-fit``: not a reconstruction from the frames but the
-        model fitted to the scan's surface (identity, expressions and a rigid pose,
+    scan : the scan itself, for ``surface-fit`` and ``landmarks-3d``, which are not
+        reconstructions from the frames but references: the model fitted to the scan's surface
+        (identity, expressions and a rigid pose,
         :func:`evaluation.landmark_definitions.fit_surface`) — the error no method using this
-        model can go below; its time is reported in ``info``, not per frame
+        model can go below — or to the scan's own 3D landmarks
+        (:func:`evaluation.landmark_definitions.fit_landmarks_3d`) — what the landmarks tell
+        without images; their time is reported in ``info``, not per frame
     detected : (N,) bool or None, the frames whose landmarks a detector found: ours and
         ours-independent fit them with the detector's model error
         (:data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless ``effort`` sets
@@ -183,18 +187,20 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         raise FitError(f"{method}: no frame has {MIN_LANDMARKS} landmarks")
     if method == "mean-face":
         return _reconstruction(model, model.mean.astype(np.float64), 0.0, len(lm))
-    if method == "surface-fit":
+    if method in ("surface-fit", "landmarks-3d"):
         if scan is None:
-            raise InputError("method surface-fit: needs the scan")
-        key = ("surface-fit", id(model), id(scan))
+            raise InputError(f"method {method}: needs the scan")
+        key = (method, id(model), id(scan))
         if key not in peers:      # the same in every condition: fitted once
-            from .landmark_definitions import fit_surface
+            from .landmark_definitions import fit_landmarks_3d, fit_surface
 
             t = time.perf_counter()
-            alpha, beta = fit_surface(model, scan, iterations=15, expression=True, pose="joint")
+            alpha, beta = (fit_surface(model, scan, iterations=15, expression=True, pose="joint")
+                           if method == "surface-fit" else fit_landmarks_3d(model, scan))
             peers[key] = (model.vertices(identity=alpha, expression=beta), time.perf_counter() - t)
         v, dt = peers[key]
-        return _reconstruction(model, v, 0.0, len(lm), {"surface_fit_seconds": round(dt, 3)})
+        return _reconstruction(model, v, 0.0, len(lm),
+                               {f"{method.replace('-', '_')}_seconds": round(dt, 3)})
     if method in ("ours", "ours-independent"):
         try:
             from morphable.fitting import fit_landmarks

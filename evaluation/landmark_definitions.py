@@ -17,7 +17,9 @@ Commands::
     python -m evaluation.landmark_definitions --scan SCAN.obj --scan-landmarks SCAN.ljson
 
 The default profile was measured on ICT FaceKit subjects (seeds 100-105), which are not the
-held-out scan.
+held-out scan. :func:`fit_landmarks_3d` fits the model to a scan's own 3D landmarks with that
+profile as their error: what the landmarks say about the face's shape without images
+(``python -m evaluation.florence ... --methods landmarks-3d``).
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ import numpy as np
 from morphable.errors import InputError, one_line_errors
 from morphable.landmarks import DEFINITION_GROUPS
 
-__all__ = ["fit_surface", "definition_offsets", "group_rms", "main"]
+__all__ = ["fit_surface", "fit_landmarks_3d", "definition_offsets", "group_rms", "main"]
 
 
 def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
@@ -114,6 +116,61 @@ def fit_surface(model, scan, iterations: int = 8, prior_weight: float = 1.0,
             step = Similarity(1.0, Rotation.from_rotvec(sol[:3]).as_matrix(), sol[3:6])
             to_model = step.inverse() @ to_model
     return coeffs[:K], np.r_[coeffs[K:], np.zeros(model.n_expression - E)]
+
+
+def fit_landmarks_3d(model, scan, iterations: int = 10, prior_weight: float = 1.0,
+                     expression_weight: float = 1.0, definition_std_mm=None):
+    """Coefficients fitting ``model`` to the scan's own 3D landmarks -> identity (K,),
+    expression (E,).
+
+    What the landmarks say about the face's shape under this model, without images: where a
+    landmark fit goes with ever more noise-free views (when its definition offsets are
+    right). Only the landmarks a landmark fit has fixed vertices for are used (not the sliding
+    jaw points); each round moves the scan's landmarks onto the current face's landmark
+    vertices by a similarity (a landmark fit cannot tell a face's size from its distance
+    either) and solves, by least squares, the landmark positions weighted by ``1 /
+    definition_std_mm^2`` with the landmark fit's priors: ``prior_weight |alpha|^2`` and
+    ``expression_weight * expression_precision(model) |beta|^2``, blendshape weights in
+    [0, 1].
+
+    Parameters
+    ----------
+    definition_std_mm : (68,) mm per coordinate, default the landmark fit's
+        :data:`~morphable.fitting.landmark_fit.DEFINITION_STD_MM`
+
+    Examples
+    --------
+    >>> alpha, beta = fit_landmarks_3d(load_model("sfm"), scan)  # doctest: +SKIP
+    """
+    from scipy.optimize import lsq_linear
+
+    from morphable.fitting.correspondences import landmark_bank
+    from morphable.fitting.landmark_fit import DEFINITION_STD_MM, expression_precision
+    from morphable.metrics import align_landmarks
+
+    sd = DEFINITION_STD_MM if definition_std_mm is None else np.asarray(definition_std_mm, float)
+    ok = (landmark_bank(model).fixed_row >= 0) & np.isfinite(scan.landmarks).all(1) & (sd > 0)
+    if ok.sum() < 4:
+        raise InputError(f"{scan.source}: fewer than 4 landmarks shared with model {model.name}")
+    ids = np.asarray(model.landmark_ids)[ok]
+    K, E = model.n_identity, model.n_expression
+    mean = np.asarray(model.mean, dtype=np.float64)[ids]
+    # (3L, K + E) rows per unit coefficient, weighted by 1 / definition_std_mm
+    w = np.repeat(1.0 / sd[ok], 3)[:, None]
+    basis = np.concatenate([model.identity_basis, model.expression_basis])[:, ids]
+    rows = w * basis.astype(np.float64).reshape(K + E, -1).T
+    prior = np.r_[np.full(K, prior_weight), np.full(E, expression_weight * expression_precision(model))]
+    A = np.vstack([rows, np.diag(np.sqrt(prior))])
+    bounded = bool(E) and model.expression_kind == "blendshapes"
+    bounds = (np.r_[np.full(K, -np.inf), np.zeros(E)], np.r_[np.full(K, np.inf), np.ones(E)])
+    coeffs = np.zeros(K + E)
+    for _ in range(iterations):
+        face = mean + (basis.reshape(K + E, -1).T @ coeffs).reshape(-1, 3)
+        target = align_landmarks(scan.landmarks[ok], face).apply(scan.landmarks[ok])
+        b = np.r_[w[:, 0] * (target - mean).ravel(), np.zeros(K + E)]
+        coeffs = (lsq_linear(A, b, bounds=bounds).x if bounded
+                  else np.linalg.lstsq(A, b, rcond=None)[0])
+    return coeffs[:K], coeffs[K:]
 
 
 def definition_offsets(model, scan, **fit_kw) -> np.ndarray:

@@ -171,6 +171,32 @@ def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm)
         reconstruct("surface-fit", sfm, np.zeros((1, 68, 2)), (64, 64))
 
 
+def test_landmarks_3d_fit(sfm):
+    """The model fitted to a subject's own 3D landmarks (no images): on a model face whose
+    annotations are off by 2.5 mm it is clearly better than the mean face, whatever the size and
+    place of the landmarks (a similarity is fitted with it)."""
+    from evaluation.florence import _reconstruction, evaluate, reconstruct
+    from evaluation.landmark_definitions import fit_landmarks_3d
+    from evaluation.scans import Scan, model_scan
+
+    scan = model_scan(sfm, rng=5, definition_mm=2.5)
+    a, b = fit_landmarks_3d(sfm, scan)
+    assert np.all((b >= 0) & (b <= 1)) and np.isfinite(a).all()
+
+    def error(v):
+        return evaluate(_reconstruction(sfm, v, 0.0, 1), scan)[0]["mean_mm"]
+
+    assert error(sfm.vertices(a, b)) < 0.9 * error(sfm.mean.astype(np.float64))
+    c, s = np.cos(0.4), np.sin(0.4)
+    moved = Scan(scan.vertices, scan.triangles,
+                 1.1 * scan.landmarks @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + 30.0)
+    a2, b2 = fit_landmarks_3d(sfm, moved)
+    np.testing.assert_allclose(a2, a, atol=1e-4)
+    np.testing.assert_allclose(b2, b, atol=1e-4)
+    with pytest.raises(InputError, match="needs the scan"):
+        reconstruct("landmarks-3d", sfm, np.zeros((1, 68, 2)), (64, 64))
+
+
 def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     """ICT holds teeth, gums and eyeballs inside the face: paired with the lips and lids they
     pulled the surface fit far off (3.4 mm on james, worse than the mean face's 2.0). Its
