@@ -155,19 +155,20 @@ def fit_landmarks_3d(model, scan, iterations: int = 10, prior_weight: float = 1.
     ids = np.asarray(model.landmark_ids)[ok]
     K, E = model.n_identity, model.n_expression
     mean = np.asarray(model.mean, dtype=np.float64)[ids]
-    # (3L, K + E) rows per unit coefficient, weighted by 1 / definition_std_mm
-    w = np.repeat(1.0 / sd[ok], 3)[:, None]
+    # (3L, K + E): the landmark coordinates per unit coefficient
     basis = np.concatenate([model.identity_basis, model.expression_basis])[:, ids]
-    rows = w * basis.astype(np.float64).reshape(K + E, -1).T
-    prior = np.r_[np.full(K, prior_weight), np.full(E, expression_weight * expression_precision(model))]
-    A = np.vstack([rows, np.diag(np.sqrt(prior))])
+    basis = basis.astype(np.float64).reshape(K + E, -1).T
+    w = np.repeat(1.0 / sd[ok], 3)
+    prior = np.r_[np.full(K, prior_weight),
+                  np.full(E, expression_weight * expression_precision(model))]
+    A = np.vstack([w[:, None] * basis, np.diag(np.sqrt(prior))])
     bounded = bool(E) and model.expression_kind == "blendshapes"
     bounds = (np.r_[np.full(K, -np.inf), np.zeros(E)], np.r_[np.full(K, np.inf), np.ones(E)])
     coeffs = np.zeros(K + E)
     for _ in range(iterations):
-        face = mean + (basis.reshape(K + E, -1).T @ coeffs).reshape(-1, 3)
+        face = mean + (basis @ coeffs).reshape(-1, 3)
         target = align_landmarks(scan.landmarks[ok], face).apply(scan.landmarks[ok])
-        b = np.r_[w[:, 0] * (target - mean).ravel(), np.zeros(K + E)]
+        b = np.r_[w * (target - mean).ravel(), np.zeros(K + E)]
         coeffs = (lsq_linear(A, b, bounds=bounds).x if bounded
                   else np.linalg.lstsq(A, b, rcond=None)[0])
     return coeffs[:K], coeffs[K:]

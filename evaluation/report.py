@@ -1,9 +1,9 @@
 """Error against run time: the Florence protocol at several effort levels per method.
 
 Each method runs at a few effort levels (frames per video 1/3/5/10, iterations, identity
-modes, gar's refinement steps) on every condition; each level gives one point (seconds per video, mean
-point-to-plane error over the conditions). Writes ``reports/error_vs_runtime.png`` (one curve
-per method), ``.json`` and ``.md``::
+modes, gar's refinement steps) on every condition; each level gives one point (seconds per
+video, mean point-to-plane error over the conditions). Writes ``reports/error_vs_runtime.png``
+(one curve per method), ``.json`` and ``.md``::
 
     python -m evaluation.report            # the james scan from ../shared/data
     python -m evaluation.report --scan S --scan-landmarks L --out reports
