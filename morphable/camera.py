@@ -204,9 +204,13 @@ class Camera:
     def px_per_mm(self, points) -> np.ndarray:
         """(...,) image scale at world points (..., 3) mm, px/mm: ``scale`` (affine) or
         ``focal / depth`` (perspective; NaN at depth <= 0)."""
+        return self._px_per_mm_at(self.to_camera(points))
+
+    def _px_per_mm_at(self, camera_points) -> np.ndarray:
+        """:meth:`px_per_mm` of points already in the camera frame."""
         if self.kind == "affine":
-            return np.full(np.shape(points)[:-1], float(self.scale))
-        d = self.depth(points)
+            return np.full(np.shape(camera_points)[:-1], float(self.scale))
+        d = -camera_points[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(d > 0, self.focal / np.where(d > 0, d, 1.0), np.nan)
 
@@ -215,8 +219,13 @@ class Camera:
 
         Perspective points behind the camera (depth <= 0) give NaN pixels.
         """
-        Xc = self.to_camera(points)
-        k = self.px_per_mm(points)
+        return self.project_camera_frame(self.to_camera(points))
+
+    def project_camera_frame(self, camera_points) -> np.ndarray:
+        """(..., N, 3) camera-frame mm (:meth:`to_camera`) -> (..., N, 2) pixels, as
+        :meth:`project`, for points already moved into the camera frame."""
+        Xc = np.asarray(camera_points)
+        k = self._px_per_mm_at(Xc)
         x, y = k * Xc[..., 0], k * Xc[..., 1]
         return np.stack([self.principal[0] + x, self.principal[1] - y], -1)
 

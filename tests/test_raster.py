@@ -242,7 +242,7 @@ def test_window_casting_matches_full_frame(sfm, monkeypatch, kind, supersample, 
              "partly behind": 600 * towards_camera}
     v = sfm.mean.astype(np.float64) + shift[case]
     vis = visibility(v, sfm.triangles, cam, supersample=supersample)
-    window = vis_module._window(cam, v, 48, 40)
+    window = vis_module._window(cam, cam.to_camera(v), 48, 40)
     if case == "partly behind":
         assert (cam.depth(v) <= 0).any() and window == (0, 48, 0, 40)
     else:

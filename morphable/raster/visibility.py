@@ -397,10 +397,10 @@ def _window_rays(camera, x0, x1, y0, y1, s, z0):
     return rays
 
 
-def _window(camera, points, width, height):
+def _window(camera, cam_points, width, height):
     """Pixel rectangle (x0, x1, y0, y1), x1/y1 exclusive, that contains the projection of the
-    world points (V, 3) mm."""
-    uv = camera.project(points)
+    camera-frame points (V, 3) mm."""
+    uv = camera.project_camera_frame(cam_points)
     if not np.isfinite(uv).all():
         return 0, width, 0, height  # points at or behind the camera: no finite bound
     u, v = uv[:, 0], uv[:, 1]
@@ -464,13 +464,12 @@ def visibility(vertices, triangles, camera, supersample: int = 1) -> Visibility:
     if Ws * Hs > _MAX_SAMPLES:
         raise InputError(f"{W}x{H} pixels with supersample {s} are {Ws * Hs} samples, more than "
                          f"the {_MAX_SAMPLES} this rasteriser takes at once")
-    v64 = v.astype(np.float64, copy=False)
-    pc = camera.to_camera(v64)
+    pc = camera.to_camera(v.astype(np.float64, copy=False))
     if (pc[:, 2] >= 0).all():
         raise InputError("mesh is entirely behind the camera (depth <= 0 for every vertex); "
                          "check the camera translation and rotation")
 
-    x0, x1, y0, y1 = _window(camera, v64, W, H)
+    x0, x1, y0, y1 = _window(camera, pc, W, H)
     z0 = pc[:, 2].max() + 1.0 if camera.kind == "affine" else 0.0
     rays = _window_rays(camera, x0, x1, y0, y1, s, z0)
     pixels, ids, weights, t_hit = cast_foreground(scene(v, t), rays)
