@@ -173,11 +173,13 @@ def condition_bars(report: dict, path, metric: str = "point-to-plane error (mm)"
     ax.set_ylabel(metric)
     ax.set_ylim(bottom=0)
     ax.grid(True, axis="y", alpha=0.3)
-    if max(len(m) for m in methods) > 18:  # long labels (effort levels): beside the axes
+    ax.set_axisbelow(True)
+    # outside the axes, where it cannot hide a bar or its error bar
+    if wide:  # long labels (effort levels): beside the axes
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     else:
-        ax.margins(y=0.12)
-        ax.legend(fontsize=8, ncol=min(len(methods), 4), loc="upper center")
+        ax.legend(fontsize=8, ncol=min(len(methods), 4), loc="upper center",
+                  bbox_to_anchor=(0.5, -0.1))
     return _save(fig, path)
 
 

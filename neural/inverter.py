@@ -136,4 +136,6 @@ def load_inverter(path) -> Inverter:
         V.meta = ckpt.get("meta", {})
         return V
 
-    return load_network(path, build, "inverter weights not found", "not an inverter checkpoint")
+    V = load_network(path, build, "inverter weights not found", "not an inverter checkpoint")
+    V.source = str(path)    # named in the reports of the refinements it starts
+    return V

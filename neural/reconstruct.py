@@ -66,6 +66,17 @@ def default_inverter_path() -> Path | None:
     return p if p.is_file() else None
 
 
+def _inverter(inverter):
+    """The Inverter that ``inverter`` names ("auto", None, a path or an Inverter), or None."""
+    if isinstance(inverter, str) and inverter == "auto":
+        inverter = default_inverter_path()
+    if inverter is None:
+        return None
+    from .inverter import Inverter, load_inverter
+
+    return inverter if isinstance(inverter, Inverter) else load_inverter(inverter)
+
+
 def landmark_trust(fit, frame: int = 0) -> float:
     """How much the landmark fit trusted frame ``frame``'s landmarks relative to annotated ones:
     ``(s^2 + (k m_0)^2) / (s^2 + (k m)^2)`` with ``s`` its landmark noise (px), ``m`` its model
@@ -294,19 +305,9 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
            for k, v in renderer.default_appearance(1).items()}
     init = "default"
     if is_gar:
-        V = None
-        if inverter == "auto":
-            p = default_inverter_path()
-            if p is not None:
-                from .inverter import load_inverter
-
-                V, init = load_inverter(p), f"inverter {p}"
-        elif inverter is not None:
-            from .inverter import Inverter, load_inverter
-
-            V = inverter if isinstance(inverter, Inverter) else load_inverter(inverter)
-            init = "inverter"
+        V = _inverter(inverter)
         if V is not None:
+            init = f"inverter {V.source}" if getattr(V, "source", None) else "inverter"
             with torch.no_grad():
                 app["z"] = V.latent(I * 2 - 1, generator=torch.Generator().manual_seed(seed))
         app["noise"] = [torch.zeros_like(e) for e in app["noise"]]
@@ -445,6 +446,8 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     H, W = images.shape[1:3]
     fit = fit_landmarks(model, np.asarray(landmarks, dtype=np.float64), [W, H],
                         shared_identity=False, n_iterations=n_iterations, **(fit_options or {}))
+    if hasattr(renderer, "generator"):     # gar: V read from its file once, not per frame
+        options["inverter"] = _inverter(options.get("inverter", "auto"))
     out, reports = [], []
     for i, image in enumerate(images):
         res, rep = refine(image, fit, renderer, steps=steps, frame=i, **options)

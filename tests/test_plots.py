@@ -45,18 +45,13 @@ def _mask(img, colour, tol=12):
 
 
 def _bar_heights(mask):
-    """Heights (px) of the solid bars of one colour, left to right (only columns standing on
-    the x axis: the legend's patch is left out)."""
-    base = np.nonzero(mask.any(1))[0].max()
-    cols = np.where(mask[base - 1], mask.sum(0), 0)
-    runs, start = [], None
-    for x, c in enumerate(np.append(cols, 0)):
-        if c > 3 and start is None:
-            start = x
-        elif c <= 3 and start is not None:
-            runs.append(int(np.median(cols[start:x])))
-            start = None
-    return runs
+    """Heights (px) of the solid bars of one colour, left to right (blobs taller than the
+    legend's patch)."""
+    from scipy import ndimage
+
+    boxes = ndimage.find_objects(ndimage.label(mask)[0])
+    return [b[0].stop - b[0].start for b in sorted(boxes, key=lambda b: b[1].start)
+            if b[0].stop - b[0].start > 12]
 
 
 def test_bar_heights_follow_the_errors(tmp_path):
