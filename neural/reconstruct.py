@@ -68,13 +68,18 @@ def default_inverter_path() -> Path | None:
 
 def _inverter(inverter):
     """The Inverter that ``inverter`` names ("auto", None, a path or an Inverter), or None."""
-    if isinstance(inverter, str) and inverter == "auto":
+    if inverter == "auto":
         inverter = default_inverter_path()
     if inverter is None:
         return None
     from .inverter import Inverter, load_inverter
 
     return inverter if isinstance(inverter, Inverter) else load_inverter(inverter)
+
+
+def _is_gar(renderer) -> bool:
+    """A generative adversarial renderer (latent z, noise, an inverter V), not a classical one."""
+    return hasattr(renderer, "generator")
 
 
 def landmark_trust(fit, frame: int = 0) -> float:
@@ -264,7 +269,7 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
         name = type(renderer).__name__
     if int(steps) < 0:
         raise InputError(f"steps must be >= 0, got {steps}")
-    is_gar = hasattr(renderer, "generator")
+    is_gar = _is_gar(renderer)
     R = renderer.resolution or int(resolution)
     model = fit.model
     lm_in = np.asarray(fit.landmarks[frame], dtype=np.float64)
@@ -446,7 +451,7 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     H, W = images.shape[1:3]
     fit = fit_landmarks(model, np.asarray(landmarks, dtype=np.float64), [W, H],
                         shared_identity=False, n_iterations=n_iterations, **(fit_options or {}))
-    if hasattr(renderer, "generator"):     # gar: V read from its file once, not per frame
+    if _is_gar(renderer):      # V read from its file once, not per frame
         options["inverter"] = _inverter(options.get("inverter", "auto"))
     out, reports = [], []
     for i, image in enumerate(images):
