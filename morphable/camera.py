@@ -31,7 +31,7 @@ import numpy as np
 from .errors import InputError
 
 __all__ = ["Camera", "euler_to_matrix", "matrix_to_euler", "axis_angle_to_matrix",
-           "matrix_to_axis_angle"]
+           "matrix_to_axis_angle", "cross"]
 
 
 def _rx(a):
@@ -74,6 +74,15 @@ def matrix_to_euler(R) -> np.ndarray:
         yaw = np.where(lock, 0.0, yaw)
         roll = np.where(lock, np.arctan2(R[..., 1, 0], R[..., 0, 0]), roll)
     return np.degrees(np.stack([yaw, pitch, roll], -1))
+
+
+def cross(a, b) -> np.ndarray:
+    """Cross product of 3-vectors over the last axis, (..., 3) x (..., 3) -> (..., 3),
+    broadcasting like ``np.cross``: the same values, a few times faster on the small arrays of
+    a fit (``np.cross`` spends most of its time moving axes)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def axis_angle_to_matrix(w) -> np.ndarray:

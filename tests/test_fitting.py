@@ -542,3 +542,24 @@ def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name
     for f, p in zip(fast, plain):
         np.testing.assert_allclose(f.frame_identity, p.frame_identity, atol=1e-8)
         np.testing.assert_allclose(f.expression, p.expression, atol=1e-8)
+
+
+def test_fit_without_jaw_points_never_computes_the_outline(sfm, monkeypatch):
+    """51-point annotations (the jaw missing) have nothing to slide: the outline is never
+    built, and the fit still recovers the pose."""
+    from morphable.fitting import landmark_fit
+
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=30, pitch=-10)
+    full = simulate_landmarks(sfm, cam)
+    lms = full.copy()
+    lms[:17] = np.nan
+
+    def no_outline(*args, **kwargs):
+        raise AssertionError("outline computed without jaw points")
+
+    monkeypatch.setattr(landmark_fit, "outline_points", no_outline)
+    res = landmark_fit.fit_landmarks(sfm, lms, (512, 512))
+    assert res.landmark_rmse_px[0] < 0.5
+    assert abs(res.euler_deg[0, 0] - 30) < 1.0
+    with pytest.raises(AssertionError, match="outline computed"):
+        landmark_fit.fit_landmarks(sfm, full, (512, 512))

@@ -10,7 +10,9 @@ Steps (each usable alone through the functions of this package):
    (:func:`~morphable.fitting.correspondences.slide_contours`); re-picked every round and
    every second nonlinear iteration;
 3. closed-form solves for identity, then expression, under the Gaussian prior
-   (:mod:`~morphable.fitting.linear`); steps 1 to 3 run ``n_linear`` times;
+   (:mod:`~morphable.fitting.linear`); steps 1 to 3 run ``n_linear`` times (once where
+   no jaw point is given and step 4 follows: with nothing to re-pick, later rounds would
+   only alternate pose and shape, which step 4 does jointly);
 4. joint Levenberg-Marquardt over rotation (axis-angle increments, no gimbal lock),
    translation, scale (affine) or depth (perspective), expressions and identity, with
    analytic Jacobians, an optional Huber loss and a Schur complement that keeps a shared
@@ -55,12 +57,14 @@ import time
 
 import numpy as np
 
+from ..camera import Camera, cross
 from ..errors import FitError, InputError
 from ..landmarks import DEFINITION_GROUPS, as_landmarks
+from ..threads import single_blas_thread
 from .correspondences import (Correspondences, across_outline, landmark_bank, outline_points,
                               slide_contours)
 from .linear import gram_hessian, project_rows, solve_expression, solve_identity
-from .pose import estimate_affine_pose, project, rotate
+from .pose import estimate_affine_pose, project, projection_jacobian, rotate
 from .result import FitResult
 
 __all__ = ["fit_landmarks", "frame_model_std", "expression_precision", "DEFINITION_STD_MM",
@@ -160,17 +164,34 @@ class _Problem:
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
         self.prior = np.r_[np.full(K, prior_weight), np.ones(self.D)]
-        self.A = np.ascontiguousarray(bank.identity[:, :, :K])
-        self.B = np.ascontiguousarray(bank.expression[:, :, :E])
-        self.AT = np.ascontiguousarray(self.A.transpose(1, 0, 2))     # (3, R, K)
-        self.BT = np.ascontiguousarray(self.B.transpose(1, 0, 2))
+        self.A, self.B, self.AT, self.BT = _basis_rows(bank, K, E)
         # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
-        # copy much faster than index lists into the (N, 3, 68, K) rows
-        self.sliding = slice(min(sliding), max(sliding) + 1) if sliding else None
-        self.gram = (_fixed_gram(bank, K, self.sliding) if robust is None and K and not self.offsets
-                     else None)
+        # copy much faster than index lists into the (N, 3, 68, K) rows. None where no frame
+        # gives an outline point (51-point annotations, detectors that drop the jaw): then
+        # nothing slides and the outline is never computed
+        slides = bool(sliding) and bool(mask[:, sliding].any())
+        self.sliding = slice(min(sliding), max(sliding) + 1) if slides else None
+        # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
+        # with the Huber loss, offsets or a definition error that differs between landmarks
+        fixed_std = self.frame_def_std[bank.fixed_row >= 0]
+        uniform = fixed_std.size == 0 or np.all(fixed_std == fixed_std[0])
+        self.gram = (_fixed_gram(bank, K, self.sliding)
+                     if robust is None and K and not self.offsets and uniform else None)
         self.size_direction = _size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
+
+
+def _basis_rows(bank, K, E):
+    """The identity and expression rows of the first K and E modes, (R, 3, K) and (R, 3, E),
+    and coordinate-major copies (3, R, K) and (3, R, E), cached per model: copying them is a
+    good part of a small fit's time."""
+    cache = bank.__dict__.setdefault("_basis_rows", {})
+    if (K, E) not in cache:
+        A = np.ascontiguousarray(bank.identity[:, :, :K])
+        B = np.ascontiguousarray(bank.expression[:, :, :E])
+        cache[K, E] = (A, B, np.ascontiguousarray(A.transpose(1, 0, 2)),
+                       np.ascontiguousarray(B.transpose(1, 0, 2)))
+    return cache[K, E]
 
 
 def _size_direction(bank, K) -> np.ndarray:
@@ -250,11 +271,16 @@ def _fixed_gram(bank, K, jaw):
 
 
 class _State:
-    """Cameras, coefficients, correspondences, and the model rows gathered for them."""
+    """Cameras, coefficients, correspondences, and the model rows gathered for them.
+
+    ``residuals`` caches :func:`_residuals` of all frames (None until computed; cleared when
+    the correspondences or their targets move): a step's trial cost and the next iteration's
+    normal equations need the same points."""
 
     def __init__(self, R, t, k, alpha, beta, corr, rows=None):
         self.R, self.t, self.k, self.alpha, self.beta, self.corr = R, t, k, alpha, beta, corr
         self.rows = rows
+        self.residuals = None
 
     def copy(self):
         return _State(self.R.copy(), self.t.copy(), self.k.copy(), self.alpha.copy(),
@@ -267,6 +293,7 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     c = st.corr
     if sliding_only and st.rows is not None:
         if pb.sliding is not None:
+            st.residuals = None
             c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
             # the offset columns (after the identity's) never change
             for src, dst in zip((pb.AT, pb.BT), (st.rows[1][..., :pb.n_identity], st.rows[2])):
@@ -277,6 +304,7 @@ def _gather(pb: _Problem, st: _State, sliding_only: bool = False):
     if pb.D:
         A = np.concatenate([A, _offset_rows(pb)], -1)
     st.rows = (c.gather_static(pb.bank.mean), A, c.gather_coordinates(pb.BT))
+    st.residuals = None
 
 
 def _combine(rows, coeffs):
@@ -366,7 +394,7 @@ def _slide(pb: _Problem, st: _State):
     """Re-pick the jaw correspondences on the current outline and move their targets along it
     (:func:`~morphable.fitting.correspondences.slide_contours`)."""
     bank = pb.bank
-    if not bank.polylines:
+    if pb.sliding is None:
         return
     if pb.perspective:
         # a pinhole camera sees the outline where the surface turns away from its centre (the
@@ -387,6 +415,7 @@ def _slide(pb: _Problem, st: _State):
         X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
         projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
     pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
+    st.residuals = None
 
 
 def _linear_stage(pb: _Problem, n_linear: int) -> _State:
@@ -447,10 +476,18 @@ def _affine_linear_stage(pb: _Problem, n_linear: int) -> _State:
 def _residuals(pb: _Problem, st: _State, jacobian: bool, sel=slice(None)):
     """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals (jaw
     points: across the outline only) of the frames ``sel``."""
-    X = _points(pb, st, sel)
-    uv, Xc, J, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel],
-                               pb.perspective, jacobian)
-    return X, uv, Xc, J, depth, across_outline(uv - pb.y[sel], pb.tangent[sel])
+    every = isinstance(sel, slice) and sel == slice(None)
+    if every and st.residuals is not None:
+        X, uv, Xc, depth, r = st.residuals
+    else:
+        X = _points(pb, st, sel)
+        uv, Xc, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel],
+                                   pb.perspective, False)
+        r = across_outline(uv - pb.y[sel], pb.tangent[sel])
+        if every:
+            st.residuals = X, uv, Xc, depth, r
+    J = projection_jacobian(Xc, st.k[sel], pb.perspective) if jacobian else None
+    return X, uv, Xc, J, depth, r
 
 
 def _across_rows(pb: _Problem, J):
@@ -506,7 +543,7 @@ def _normal_equations(pb: _Problem, st: _State):
     cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
     # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
     RX = Xc - st.t[:, None]
-    blocks = [np.cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
+    blocks = [cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
     if n_rho:
         blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
     blocks = [np.concatenate(blocks, -1).transpose(0, 2, 1, 3)]
@@ -616,30 +653,26 @@ def _gsum(pb, x):
 
 
 def _apply(pb, st, df, da, n_t, n_rho):
-    new = st.copy()
-    new.R = rotate(st.R, df[:, :3])
-    new.t[:, :n_t] += df[:, 3:3 + n_t]
-    if n_rho:
-        new.k = st.k * np.exp(np.clip(df[:, 3 + n_t], -2.0, 2.0))
+    t = st.t.copy()
+    t[:, :n_t] += df[:, 3:3 + n_t]
+    k = st.k * np.exp(np.clip(df[:, 3 + n_t], -2.0, 2.0)) if n_rho else st.k
     o = 3 + n_t + n_rho
+    beta = st.beta
     if pb.E:
-        new.beta = st.beta + df[:, o:]
+        beta = st.beta + df[:, o:]
         if pb.nonneg:
-            new.beta = np.maximum(new.beta, 0.0)
-    if pb.K:
-        new.alpha = st.alpha + da
-    return new
+            beta = np.maximum(beta, 0.0)
+    alpha = st.alpha + da if pb.K else st.alpha
+    return _State(rotate(st.R, df[:, :3]), t, k, alpha, beta, st.corr, st.rows)
 
 
 def _merge(pb, old, new, frames_ok, groups_ok):
+    if frames_ok.all() and groups_ok.all():
+        return new
     f = frames_ok
-    out = old.copy()
-    out.R = np.where(f[:, None, None], new.R, old.R)
-    out.t = np.where(f[:, None], new.t, old.t)
-    out.k = np.where(f, new.k, old.k)
-    out.beta = np.where(f[:, None], new.beta, old.beta)
-    out.alpha = np.where(groups_ok[:, None], new.alpha, old.alpha)
-    return out
+    return _State(np.where(f[:, None, None], new.R, old.R), np.where(f[:, None], new.t, old.t),
+                  np.where(f, new.k, old.k), np.where(groups_ok[:, None], new.alpha, old.alpha),
+                  np.where(f[:, None], new.beta, old.beta), old.corr, old.rows)
 
 
 def _as_frames(landmarks, mask, image_size):
@@ -665,6 +698,7 @@ def _as_frames(landmarks, mask, image_size):
     return y, given, size
 
 
+@single_blas_thread()
 def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=None,
                   n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
@@ -688,7 +722,8 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
     n_iterations : int
         Levenberg-Marquardt iterations after the linear stage (0 = linear fit only).
     n_linear : int
-        Rounds of pose / jaw / identity / expression linear solves.
+        Rounds of pose / jaw / identity / expression linear solves (at most one where no
+        frame gives a jaw point and ``n_iterations > 0``).
     n_identity, n_expression : int or None
         Fit only the first modes (None = all).
     prior_weight, expression_weight : float >= 0
@@ -797,7 +832,10 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                   1.0 if auto_std else float(landmark_std_px),
                   model_std_mm, robust, float(huber_k), definition_std_mm)
     with np.errstate(all="ignore"):
-        st = _linear_stage(pb, n_linear)
+        # with no jaw point to re-pick, later linear rounds would only alternate pose and
+        # shape, which the nonlinear stage does jointly (same accuracy, a third less time)
+        rounds = n_linear if pb.sliding is not None or not n_iterations else min(n_linear, 1)
+        st = _linear_stage(pb, rounds)
         st, iters = _lm_stage(pb, st, n_iterations)
         for _ in range(AUTO_ROUNDS if auto_std else 0):
             _slide(pb, st)
@@ -816,8 +854,6 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         raise FitError("the fit did not converge to finite values (degenerate landmarks?)")
     if perspective and np.any(used & ~(depth > 0)):
         raise FitError("the perspective fit put landmarks behind the camera")
-    from ..camera import Camera
-
     cams = []
     for i in range(N):
         W_, H_ = (int(round(v)) for v in size[i])

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..camera import axis_angle_to_matrix, cross
 from ..errors import FitError
 
-__all__ = ["estimate_affine_pose", "project", "rotate"]
+__all__ = ["estimate_affine_pose", "project", "projection_jacobian", "rotate"]
 
 MIN_DEPTH_MM = 1e-3
 
@@ -69,7 +70,7 @@ def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = T
     M[:, 1] *= -1                    # image y down -> camera y up
     U, S, Vt = np.linalg.svd(M, full_matrices=False)
     r12 = U @ Vt
-    R = np.concatenate([r12, np.cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
+    R = np.concatenate([r12, cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
     scale = S.mean(-1)
     if not np.all(np.isfinite(R)) or not np.all(scale > 0):
         raise FitError("the affine pose estimate is degenerate (landmarks collinear?)")
@@ -93,8 +94,6 @@ def _check_spread(centred, w, rms, what):
 
 def rotate(R, dw):
     """Left-multiply rotations (N, 3, 3) by ``exp([dw])``, dw (N, 3) radians (no gimbal lock)."""
-    from ..camera import axis_angle_to_matrix
-
     return axis_angle_to_matrix(dw) @ R
 
 
@@ -124,12 +123,24 @@ def project(X, R, t, k, principal, perspective: bool, jacobian: bool = True):
     uv = np.empty((N, L, 2))
     uv[..., 0] = principal[:, None, 0] + g * Xc[..., 0]
     uv[..., 1] = principal[:, None, 1] - g * Xc[..., 1]
-    J = None
-    if jacobian:
-        J = np.zeros((N, L, 2, 3))
-        J[..., 0, 0] = g
-        J[..., 1, 1] = -g
-        if perspective:
-            J[..., 0, 2] = g * Xc[..., 0] / safe
-            J[..., 1, 2] = -g * Xc[..., 1] / safe
+    J = projection_jacobian(Xc, k, perspective) if jacobian else None
     return uv, Xc, J, depth
+
+
+def projection_jacobian(Xc, k, perspective: bool):
+    """d uv / d Xc (N, L, 2, 3) at camera-frame points Xc (N, L, 3) mm, k (N,) px/mm or
+    focal px (see :func:`project`)."""
+    N, L = Xc.shape[:2]
+    kk = k[:, None]
+    J = np.zeros((N, L, 2, 3))
+    if perspective:
+        depth = -Xc[..., 2]
+        safe = np.where(depth > MIN_DEPTH_MM, depth, MIN_DEPTH_MM)
+        g = kk / safe
+        J[..., 0, 2] = g * Xc[..., 0] / safe
+        J[..., 1, 2] = -g * Xc[..., 1] / safe
+    else:
+        g = kk
+    J[..., 0, 0] = g
+    J[..., 1, 1] = -g
+    return J

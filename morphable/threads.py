@@ -1,0 +1,65 @@
+"""One BLAS thread for the many small matrix products of a fit.
+
+A landmark fit is thousands of products of matrices with tens to a few hundred rows. A
+multi-threaded BLAS (OpenBLAS' default: a thread per core) spends more time waking and
+synchronising its threads than it saves on such products, and when anything else runs on
+the machine its spinning threads fight that work: on 2 cores with one other busy process a
+fit took 2x as long (``python -m evaluation.bench_fitting --load 1``, docs/fitting.md).
+Users fit in parallel (fit-batch and Dask workers, a notebook beside a training run), so the
+library limits BLAS itself instead of asking for environment variables.
+
+:class:`single_blas_thread` holds BLAS at one thread for the duration of a block or a call.
+It nests and is safe across Python threads (the first to enter sets the limit, the last to
+leave restores what was there). threadpoolctl is imported on first use, so that ``import
+morphable`` stays light, and its scan of the loaded libraries is made once per process.
+
+Examples
+--------
+>>> import numpy as np
+>>> with single_blas_thread():
+...     x = np.linalg.solve(np.eye(3), np.ones(3))
+>>> @single_blas_thread()
+... def small_solve(A, b):
+...     return np.linalg.solve(A, b)
+"""
+from __future__ import annotations
+
+import contextlib
+import threading
+
+__all__ = ["single_blas_thread"]
+
+_lock = threading.Lock()
+_depth = 0
+_limiter = None
+_controller = None
+
+
+def _blas_controller():
+    global _controller
+    if _controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _controller = ThreadpoolController()
+    return _controller
+
+
+class single_blas_thread(contextlib.ContextDecorator):
+    """Context manager and decorator: BLAS (OpenBLAS, MKL, BLIS) runs one thread inside."""
+
+    def __enter__(self):
+        global _depth, _limiter
+        with _lock:
+            if _depth == 0:
+                _limiter = _blas_controller().limit(limits=1, user_api="blas")
+            _depth += 1
+        return self
+
+    def __exit__(self, *exc):
+        global _depth, _limiter
+        with _lock:
+            _depth -= 1
+            if _depth == 0:
+                _limiter.restore_original_limits()
+                _limiter = None
+        return False
