@@ -21,6 +21,7 @@ import numpy as np
 
 from morphable.errors import InputError
 from morphable.landmarks import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
+from morphable.logs import import_open3d
 from morphable.metrics import submesh
 
 __all__ = ["Scan", "load_scan", "read_scan_landmarks", "detect_units", "interocular",
@@ -345,7 +346,7 @@ def outer_skin(model) -> np.ndarray:
     keep = np.zeros(model.n_vertices, dtype=bool)
     keep[model.skin_vertices()] = True
     if not keep.all():
-        import open3d as o3d
+        o3d = import_open3d()
 
         from morphable.normals import vertex_normals
         from morphable.raster.visibility import scene as raycasting_scene

@@ -28,6 +28,7 @@ import numpy as np
 from morphable.camera import Camera
 from morphable.errors import InputError
 from morphable.landmarks import JAW
+from morphable.logs import import_open3d
 from morphable.metrics import Similarity, align_landmarks
 from morphable.raster.visibility import scene as raycasting_scene
 
@@ -150,7 +151,7 @@ def sample_frames(n_frames: int, k: int) -> np.ndarray:
 
 def _visible(scene, camera: Camera, points, tol_mm: float = 4.0) -> np.ndarray:
     """(N,) bool: the first surface hit on the ray from the camera is (near) the point."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     d = -camera.view_directions(points)
     if camera.kind == "affine":

@@ -14,6 +14,7 @@ import json
 import logging
 import os
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -204,7 +205,21 @@ def _executor(workers: int, scheduler: str | None):
         return None, None
     from concurrent.futures import ProcessPoolExecutor
 
-    return ProcessPoolExecutor(max_workers=workers), None
+    return ProcessPoolExecutor(max_workers=workers, initializer=one_thread_per_worker), None
+
+
+def one_thread_per_worker() -> None:
+    """Initializer of pool workers: as many workers as cores, so each runs its numeric
+    libraries on one thread (BLAS, OpenMP, torch); their default thread pools, a thread per
+    core in every worker, would oversubscribe the cores and spin against each other. Dask's
+    nanny starts its workers with the same limits (``distributed.nanny.pre-spawn-environ``)."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"              # for libraries the worker loads later
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
 
 
 def run_batch(items, out_dir, work, options: dict | None = None, workers: int = 1,

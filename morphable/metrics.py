@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import FitError, InputError
+from .logs import import_open3d
 
 __all__ = ["Similarity", "align_landmarks", "crop_sphere", "crop_mesh", "submesh", "icp_refine",
            "point_to_plane", "point_to_surface", "compare_to_scan", "Comparison",
@@ -120,7 +121,7 @@ class Similarity:
 
 
 def _o3d_cloud(points, normals=None):
-    import open3d as o3d
+    o3d = import_open3d()
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points)))
     if normals is not None:
@@ -145,7 +146,7 @@ def align_landmarks(source, target, scale: bool = True) -> Similarity:
     ------
     FitError when fewer than 3 usable, non-collinear pairs remain.
     """
-    import open3d as o3d
+    o3d = import_open3d()
 
     src = _points(source, "source landmarks", allow_nan=True)
     dst = _points(target, "target landmarks", allow_nan=True)
@@ -269,7 +270,7 @@ def icp_refine(source, target, target_normals, max_distance: float = 10.0, scale
     transform : Similarity mapping ``source`` onto ``target``
     info : dict — ``method``, ``fitness`` (fraction of source points paired), ``rmse_mm``
     """
-    import open3d as o3d
+    o3d = import_open3d()
 
     reg = o3d.pipelines.registration
     src = _o3d_cloud(_points(source, "ICP source"))

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
+from .threads import single_blas_thread
 
 __all__ = ["MorphableModel", "SKIN_SEGMENTS"]
 
@@ -266,6 +267,9 @@ class MorphableModel:
             raise InputError(f"{self.name}: vertex ids must be a vector in [0, {self.n_vertices})")
         return self._evaluate(ids, identity, expression, dtype)
 
+    # one BLAS thread: the product is a GEMV (or a thin GEMM) that two threads ran 7x slower
+    # (SFM, 2 cores), and whose idle threads spin against other work afterwards
+    @single_blas_thread()
     def _evaluate(self, rows, identity, expression, dtype) -> np.ndarray:
         dtype = np.dtype(dtype)
         a = _as_coefficients(identity, self.n_identity, "identity", dtype)

@@ -12,6 +12,7 @@ import numpy as np
 
 from .errors import InputError
 from .io.atomic import atomic_path
+from .logs import quiet_vtk
 
 __all__ = ["VIEWS", "show_mesh", "parse_size"]
 
@@ -73,10 +74,7 @@ def show_mesh(vertices, triangles, *, landmarks=None, scan=None, errors=None,
         raise InputError("mesh vertices must be a finite, non-empty (V, 3) array")
     off_screen = screenshot is not None or not os.environ.get("DISPLAY")
     if off_screen:
-        # VTK tries X first and logs a warning before it falls back to EGL/OSMesa
-        from vtkmodules.vtkCommonCore import vtkLogger
-
-        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+        quiet_vtk()
     plotter = pv.Plotter(off_screen=off_screen, window_size=list(size))
     plotter.set_background("white")
     mesh = _polydata(v, triangles)

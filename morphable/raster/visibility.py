@@ -30,6 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import InputError
+from ..logs import import_open3d
 
 __all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene"]
 
@@ -259,7 +260,7 @@ def _cached(cache: OrderedDict, size: int, key: bytes, make):
 
 def _import_open3d():
     try:
-        import open3d
+        open3d = import_open3d()
     except ImportError:  # pragma: no cover - the raster extra is missing
         raise InputError("rasterisation needs open3d: pip install 'morphable[raster]'") from None
     return open3d
