@@ -9,9 +9,16 @@ for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
   residual discriminator;
 - :mod:`neural.losses` — L_n, L_ldmk, L_id, L_adv (non-saturating) with R1, weighted total;
 - :mod:`neural.auxnets` — the frozen auxiliary networks N (normals), P (face mask),
-  L (landmarks), R (identity) and their loader;
+  L (landmarks), R (identity), their loader and ``python -m neural.auxnets.train``;
 - :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
-- :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``.
+- :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``;
+- :mod:`neural.checkpoint` — loading a network from a checkpoint file, one-line errors;
+- :mod:`neural.renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderers`;
+- :mod:`neural.inverter` — the inverting network V (image -> latent ``z``), its loss and files;
+- :mod:`neural.train_inverter` — ``python -m neural.train_inverter``: V against a frozen GAR;
+- :mod:`neural.reconstruct` — reconstruction by inverting a renderer (crop, refine) and editing;
+- :mod:`neural.evaluate` — ``python -m neural.evaluate``: quality report of a trained GAR;
+- :mod:`neural.ablate` — ``python -m neural.ablate``: reconstruction ablations, synthetic faces.
 
 This package needs torch (``pip install morphable[neural]``); ``morphable`` itself never
 imports it. Images are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W)
