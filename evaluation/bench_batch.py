@@ -14,7 +14,9 @@ a fresh output folder; the time includes starting the pool or cluster and each w
 model load, as a user of the command would see it (after one warm-up fit in the main
 process, which forked pool workers inherit and Dask's spawned workers do not). "1 worker" of the local pool is the
 in-process loop that ``fit-batch --workers 1`` uses. Ratios are against that serial run of
-the same workload in the same process. BLAS is single-threaded in every process.
+the same workload in the same process. Nothing sets thread counts through the environment:
+pool workers hold their numeric libraries at one thread themselves
+(:func:`morphable.batch.one_thread_per_worker`; Dask's nanny does the same for its workers).
 
 Run::
 
@@ -22,19 +24,15 @@ Run::
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
 
-for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import shutil  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
+import numpy as np
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 PHOTOS = ("image_0010.png", "takeo.ppm", "einstein.jpg", "breakingbad.jpg")
