@@ -438,7 +438,7 @@ def _other_paths(model, repeats: int = 5) -> dict:
 
         from morphable.io.landmarks import read_pts
         from morphable.fitting.detect import read_image
-        from neural.reconstruct import refine
+        from morphable.refinement import refine
 
         image = read_image(DATA / "images" / "image_0010.png")
         fit = fit_landmarks(model, read_pts(DATA / "images" / "image_0010.pts"),

@@ -125,13 +125,15 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
 
 
 def gar_refiner():
-    """:func:`neural.reconstruct.refine_frames`, or a one-line InputError when the neural
-    plugin is not installed (callers check before a long run)."""
+    """:func:`morphable.refinement.refine_frames`, or a one-line InputError when the neural
+    plugin (the gar renderer) is not installed (callers check before a long run)."""
     try:
-        from neural.reconstruct import refine_frames
+        import neural.renderer  # noqa: F401
     except ImportError as e:
         raise InputError(f"method gar: the neural plugin is not installed ({e}); "
                          "pip install -e '.[neural]'") from None
+    from morphable.refinement import refine_frames
+
     return refine_frames
 
 
@@ -151,7 +153,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
     peers : cache of loaded peer fitters and of surface fits (reused between calls)
     images : (N, H, W, 3) the frames themselves (gar: the per-frame landmark fit of
         ours-independent refined by inverting the GAR,
-        :func:`neural.reconstruct.refine_frames`, then averaged)
+        :func:`morphable.refinement.refine_frames`, then averaged)
     focal_px : the video camera's focal length (px) when known: ours and ours-independent
         then fit a pinhole camera with it (unless ``effort["camera"]`` says "affine"), and so
         do gar's starting fits (always); None = an affine camera. eos always fits its affine

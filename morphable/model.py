@@ -6,6 +6,8 @@ the bases are stored already scaled, in millimetres per unit coefficient.
 """
 from __future__ import annotations
 
+import sys
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,14 +22,29 @@ SKIN_SEGMENTS = ("face", "head_neck")
 interior (ICT FaceKit)."""
 
 
+def _torch_tensor(x) -> bool:
+    """Whether ``x`` is a torch tensor (only possible once torch has been imported)."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(x, torch.Tensor)
+
+
+# per model: its mean and bases as torch tensors, keyed by (what, modes, dtype, device), so
+# that an optimisation calling the forward pass every step converts them once
+_TORCH_ARRAYS = weakref.WeakKeyDictionary()
+
+
+def _check_modes(shape, n_modes: int, what: str) -> None:
+    if len(shape) == 0:
+        raise InputError(f"{what} coefficients must be a vector (..., k), got a scalar")
+    if shape[-1] > n_modes:
+        raise InputError(f"{what}: {shape[-1]} coefficients given, the model has {n_modes} modes")
+
+
 def _as_coefficients(coeffs, n_modes: int, what: str, dtype) -> np.ndarray | None:
     if coeffs is None:
         return None
     c = np.asarray(coeffs, dtype=dtype)
-    if c.ndim == 0:
-        raise InputError(f"{what} coefficients must be a vector (..., k), got a scalar")
-    if c.shape[-1] > n_modes:
-        raise InputError(f"{what}: {c.shape[-1]} coefficients given, the model has {n_modes} modes")
+    _check_modes(c.shape, n_modes, what)
     if not np.all(np.isfinite(c)):
         raise InputError(f"{what} coefficients contain NaN or inf")
     return c
@@ -245,7 +262,24 @@ class MorphableModel:
         -------
         (..., V, 3) array, mm; the leading dimensions broadcast between ``identity``
         and ``expression``.
+
+        Torch tensors in (either coefficient, batch first) give a torch tensor out, in the
+        first tensor's dtype and device and differentiable in the coefficients: the forward
+        pass of photometric refinement (:mod:`morphable.refinement`). ``dtype`` is then
+        ignored, and the coefficients are not checked for NaN (they are optimisation
+        variables; the optimiser checks its loss). The model's arrays are converted once per
+        dtype and device and kept with the model, which must then not be changed in place.
+
+        >>> import torch
+        >>> m = MorphableModel.from_arrays(mean=np.zeros((3, 3)), triangles=[[0, 1, 2]],
+        ...                                identity_basis=np.ones((2, 3, 3)))
+        >>> a = torch.tensor([[1.0, 0.5]], requires_grad=True)
+        >>> v = m.vertices(a)
+        >>> v.shape, v.requires_grad, bool((v == 1.5).all())
+        (torch.Size([1, 3, 3]), True, True)
         """
+        if _torch_tensor(identity) or _torch_tensor(expression):
+            return self._evaluate_torch(identity, expression)
         return self._evaluate(slice(None), identity, expression, dtype)
 
     def vertices_at(self, ids, identity=None, expression=None, dtype=np.float64) -> np.ndarray:
@@ -284,6 +318,34 @@ class MorphableModel:
             B = basis[:k, rows].reshape(k, n * 3).astype(dtype, copy=False)
             out = out + (c @ B).reshape(*c.shape[:-1], n, 3)
         return out
+
+    def _evaluate_torch(self, identity, expression):
+        like = identity if _torch_tensor(identity) else expression
+        coeffs = []
+        for c, what, n_modes in ((identity, "identity", self.n_identity),
+                                 (expression, "expression", self.n_expression)):
+            if c is not None:
+                c = like.new_tensor(c) if not _torch_tensor(c) else c.to(like.dtype)
+                _check_modes(c.shape, n_modes, what)
+            coeffs.append(c)
+        out = self._torch_array("mean", 0, like)
+        for c, what in zip(coeffs, ("identity", "expression")):
+            if c is not None and c.shape[-1]:
+                # (..., k) @ (k, V*3): the first k modes
+                out = out + c @ self._torch_array(what, c.shape[-1], like)
+        return out.reshape(*out.shape[:-1], self.n_vertices, 3)
+
+    def _torch_array(self, what: str, k: int, like):
+        """The mean (V*3,) or the first ``k`` modes of a basis (k, V*3) as a tensor like ``like``."""
+        import torch
+
+        cache = _TORCH_ARRAYS.setdefault(self, {})
+        key = (what, k, like.dtype, like.device)
+        if key not in cache:
+            a = self.mean.reshape(-1) if what == "mean" else \
+                getattr(self, f"{what}_basis")[:k].reshape(k, -1)
+            cache[key] = torch.tensor(np.asarray(a), dtype=like.dtype, device=like.device)
+        return cache[key]
 
     def sample(self, rng=None, identity_std: float = 1.0, expression=None, n_identity=None):
         """Random identity coefficients (and the given expression) -> vertices.

@@ -15,15 +15,25 @@ A renderer class is constructed with keyword options and provides::
         image      : (B, 3, H, W) torch tensor in [0, 1]
     default_appearance(batch_size) -> dict     # a starting point for optimisation
     resolution : int or None                   # the normal-map size it expects (None: any)
+
+Inverting a renderer (:mod:`morphable.refinement`) asks it, through the hooks of
+:class:`RendererBase` (defaults there; both plugins derive from it), where the appearance
+starts (``initial_appearance``), which appearance tensors move and how fast
+(``learning_rates``), which pixels the photometric terms compare (``photometric_mask``),
+what prior the appearance has (``appearance_prior``), what keeps it valid after a step
+(``constrain_appearance``) and which perceptual features it offers (``feature_network``).
+The refinement never asks which renderer it has.
 """
 from __future__ import annotations
 
+import inspect
 from importlib import metadata
 from typing import Protocol, runtime_checkable
 
 from .errors import InputError
 
-__all__ = ["Renderer", "GROUP", "available_renderers", "get_renderer"]
+__all__ = ["Renderer", "RendererBase", "GROUP", "available_renderers", "get_renderer",
+           "plugin_feature_network"]
 
 GROUP = "morphable.renderers"
 
@@ -35,6 +45,46 @@ class Renderer(Protocol):
     def render(self, normal_map, appearance): ...
 
     def default_appearance(self, batch_size: int = 1) -> dict: ...
+
+
+class RendererBase:
+    """The inversion hooks of a renderer, with their defaults: the appearance starts at
+    :meth:`default_appearance`, nothing of it moves, the photometric terms compare the face
+    pixels, no prior, no constraint, no feature network. Appearance dicts hold (1, ...)
+    tensors or lists of them (e.g. per-layer noise)."""
+
+    resolution: int | None = None
+    learning_rates: dict = {}
+    """Adam learning rate of each appearance entry refinement optimises (others stay fixed)."""
+
+    def initial_appearance(self, image, coverage, seed: int = 0) -> tuple[dict, str | None]:
+        """Where the appearance starts for ``image`` (1, 3, R, R) in [0, 1] with the fitted
+        face's ``coverage`` (1, 1, R, R) in [0, 1] -> (appearance, how it was chosen, or None
+        when the renderer has nothing to say). ``seed``: for a random start."""
+        import torch
+
+        return {k: (v.detach().clone() if torch.is_tensor(v) else [e.clone() for e in v])
+                for k, v in self.default_appearance(1).items()}, None
+
+    def photometric_mask(self, coverage):
+        """(1, 1, R, R) weight of each pixel in the photometric terms, from the fitted face's
+        ``coverage``: the face only, where the renderer draws no background of its own."""
+        return coverage
+
+    def appearance_prior(self, appearance) -> dict:
+        """Named loss terms (scalar tensors) on the appearance; their weights are the
+        refinement's loss weights of the same names."""
+        return {}
+
+    def constrain_appearance(self, appearance) -> None:
+        """Bring the appearance back into its valid range after a step (in place)."""
+
+    @staticmethod
+    def feature_network():
+        """A perceptual feature network ``image (B, 3, H, W) in [0, 1] -> list of feature
+        maps`` and its name, or None. A renderer class may offer one without being
+        constructed (:func:`plugin_feature_network`)."""
+        return None
 
 
 def _entry_points() -> dict:
@@ -60,12 +110,36 @@ def get_renderer(name: str, **options) -> Renderer:
         raise InputError(f"renderer {name!r} is not installed (available: "
                          f"{', '.join(sorted(eps)) or 'none'}); the 'gar' renderer needs the "
                          f"neural extra: pip install -e '.[neural]'")
+    cls = _load(eps[name])
     try:
-        cls = eps[name].load()
-    except ImportError as e:
-        raise InputError(f"renderer {name!r} cannot be loaded ({e})") from None
+        inspect.signature(cls).bind(**options)
+    except TypeError as e:
+        raise InputError(f"renderer {name!r}: {e}") from None
     renderer = cls(**options)
     if not isinstance(renderer, Renderer):
         raise InputError(f"renderer {name!r} ({eps[name].value}) does not implement render() "
                          f"and default_appearance()")
     return renderer
+
+
+def _load(entry_point):
+    try:
+        return entry_point.load()
+    except ImportError as e:
+        raise InputError(f"renderer {entry_point.name!r} cannot be loaded ({e})") from None
+
+
+def plugin_feature_network():
+    """The first ``feature_network()`` (in name order) that an installed renderer class
+    offers, or None; plugins that cannot be loaded are passed over. The refinement's default
+    perceptual features for a renderer without its own (the classical one borrows the neural
+    plugin's aux network N)."""
+    for name, ep in sorted(_entry_points().items()):
+        try:
+            cls = _load(ep)
+        except InputError:
+            continue
+        found = getattr(cls, "feature_network", lambda: None)()
+        if found is not None:
+            return found
+    return None

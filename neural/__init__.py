@@ -12,16 +12,19 @@ for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
   L (landmarks), R (identity), their loader and ``python -m neural.auxnets.train``;
 - :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
 - :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``;
-- :mod:`neural.checkpoint` — loading a network from a checkpoint file, one-line errors;
-- :mod:`neural.renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderers`;
+- :mod:`neural.checkpoint` — the committed weights' default paths, loading a network or
+  the generator from a checkpoint file, one-line errors;
+- :mod:`neural.renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderers`,
+  with its inversion hooks (z from V);
 - :mod:`neural.inverter` — the inverting network V (image -> latent ``z``), its loss and files;
-- :mod:`neural.train_inverter` — ``python -m neural.train_inverter``: V against a frozen GAR;
-- :mod:`neural.reconstruct` — reconstruction by inverting a renderer (crop, refine) and editing;
-- :mod:`neural.evaluate` — ``python -m neural.evaluate``: quality report of a trained GAR;
-- :mod:`neural.ablate` — ``python -m neural.ablate``: reconstruction ablations, synthetic faces.
+- :mod:`neural.train_inverter` — ``python -m neural.train_inverter``: V against a frozen GAR.
+
+Reconstruction by inverting a renderer and editing are the core's
+(:mod:`morphable.refinement`); the GAR's quality report and ablations are evaluation
+(:mod:`evaluation.gar_quality`, :mod:`evaluation.gar_ablation`).
 
 This package needs torch (``pip install morphable[neural]``); ``morphable`` itself never
-imports it. Images are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W)
+imports it: it finds the renderer through the ``morphable.renderers`` entry point. Images are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W)
 unit vectors in the camera frame (x right, y up, z towards the viewer) and zero outside
 the face.
 """

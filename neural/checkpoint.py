@@ -1,6 +1,16 @@
-"""Loading a network from a checkpoint file with one-line errors that name the file."""
+"""The neural plugin's weights: where the committed files live (``neural/weights/``, see its
+``MODEL_CARD.md``) and loading networks from checkpoint files with one-line errors that name
+the file.
+
+This module, not one named ``weights``, holds them because ``neural/weights/`` is the data
+folder of the ``.pt`` files (package data): a ``neural/weights.py`` beside it would be a
+second thing called ``neural.weights``. The inverter's and the aux networks' own loaders
+stay beside their savers (:func:`neural.inverter.load_inverter`,
+:func:`neural.auxnets.load_aux`) and take their default paths from here.
+"""
 from __future__ import annotations
 
+import os
 import pickle
 from pathlib import Path
 
@@ -8,7 +18,44 @@ import torch
 
 from morphable.errors import InputError
 
-__all__ = ["load_network"]
+__all__ = ["WEIGHTS_DIR", "WEIGHTS_ENV", "GENERATOR_FILE", "default_generator_path",
+           "default_no_norm_cycle_path", "default_inverter_path", "default_aux_path",
+           "load_network", "load_generator"]
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+"""The committed weights (tiny config, 64 px)."""
+WEIGHTS_ENV = "MORPHABLE_GAR_WEIGHTS"
+"""Environment variable naming the gar renderer's generator file."""
+GENERATOR_FILE = WEIGHTS_DIR / "gar_tiny.pt"
+
+
+def _committed(name: str) -> Path | None:
+    p = WEIGHTS_DIR / name
+    return p if p.is_file() else None
+
+
+def default_generator_path() -> Path | None:
+    """``$MORPHABLE_GAR_WEIGHTS`` if set, else ``neural/weights/gar_tiny.pt`` if present."""
+    env = os.environ.get(WEIGHTS_ENV)
+    if env:
+        return Path(env)
+    return _committed(GENERATOR_FILE.name)
+
+
+def default_no_norm_cycle_path() -> Path | None:
+    """``neural/weights/gar_tiny_no_norm_cycle.pt`` (the lambda_n = 0 generator) if committed."""
+    return _committed("gar_tiny_no_norm_cycle.pt")
+
+
+def default_inverter_path() -> Path | None:
+    """``neural/weights/inverter_tiny.pt`` if committed, else None (pass ``inverter=`` to
+    use another file, e.g. ``runs/inv/inverter.pt`` of :mod:`neural.train_inverter`)."""
+    return _committed("inverter_tiny.pt")
+
+
+def default_aux_path(name: str) -> Path:
+    """Where the committed weights of aux net ``name`` live (``neural/weights/aux_N.pt``...)."""
+    return WEIGHTS_DIR / f"aux_{name}.pt"
 
 
 def load_network(path, build, missing: str, invalid: str):
@@ -29,3 +76,18 @@ def load_network(path, build, missing: str, invalid: str):
     except (KeyError, RuntimeError, EOFError, OSError, pickle.UnpicklingError) as e:
         raise InputError(f"{path}: {invalid} ({str(e).splitlines()[0]})") from None
     return net.eval().requires_grad_(False)
+
+
+def load_generator(path, ema: bool = True):
+    """A :class:`neural.gar.Generator` (eval mode) from ``generator.pt`` or ``checkpoint.pt``
+    of :mod:`neural.train`; from a checkpoint, ``ema=False`` takes the raw generator instead
+    of its moving average."""
+    from .config import GARConfig
+    from .gar import Generator
+
+    def build(ckpt):
+        G = Generator(GARConfig.from_dict(ckpt["config"]))
+        G.load_state_dict(ckpt["G_ema"] if ema and "G_ema" in ckpt else ckpt["G"])
+        return G
+
+    return load_network(path, build, "generator weights not found", "not a GAR checkpoint")

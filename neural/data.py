@@ -108,7 +108,7 @@ class SyntheticFaces:
         self.n_identities = n_identities
         if n_identities is not None:
             pool = np.random.default_rng(seed)
-            self._pool = [self._random_identity(pool) for _ in range(int(n_identities))]
+            self._pool = [self.draw_identity(pool) for _ in range(int(n_identities))]
 
     @classmethod
     def from_config(cls, config, **kwargs):
@@ -118,7 +118,23 @@ class SyntheticFaces:
                    identity_std=config.identity_std, expression_max=config.expression_max, **kwargs)
 
     # --- random parameters --------------------------------------------------------------
-    def _random_identity(self, rng) -> dict:
+    def draw(self, rng) -> dict:
+        """The parameters of one random face, drawn from the numpy Generator ``rng`` in this
+        order: ``identity`` (K,), ``albedo`` (V, 3) and ``tone`` (:meth:`draw_identity`),
+        ``expression`` (E,), ``pose`` (3,) yaw, pitch, roll in degrees, ``sh`` (9, 3) and
+        ``background`` (R, R, 3) — the arguments of :meth:`render` and the skin tone."""
+        face = self.draw_identity(rng)
+        face["expression"] = self.draw_expression(rng)
+        face["pose"] = self.draw_pose(rng)
+        face["sh"] = self.draw_light(rng)
+        face["background"] = self.draw_background(rng)
+        return face
+
+    def draw_pose(self, rng) -> np.ndarray:
+        """(3,) yaw, pitch, roll in degrees, uniform within the pose limits."""
+        return rng.uniform(-1, 1, 3) * self.pose_max
+
+    def draw_identity(self, rng) -> dict:
         """Shape coefficients, a procedural albedo (per-vertex RGB in [0, 1]) and its skin
         tone in units of its standard deviation (light -> dark)."""
         m = self.model
@@ -141,7 +157,8 @@ class SyntheticFaces:
             albedo = albedo * (1 - w + w * np.asarray(tint))
         return {"identity": alpha, "albedo": np.clip(albedo, 0.02, 1.0), "tone": tone}
 
-    def _random_expression(self, rng) -> np.ndarray:
+    def draw_expression(self, rng) -> np.ndarray:
+        """(E,) blendshape weights on one or two expressions, or PCA coefficients."""
         m = self.model
         e = np.zeros(m.n_expression)
         if m.n_expression == 0:
@@ -153,7 +170,8 @@ class SyntheticFaces:
             e = rng.standard_normal(m.n_expression) * self.expression_max
         return e
 
-    def _random_light(self, rng) -> np.ndarray:
+    def draw_light(self, rng) -> np.ndarray:
+        """(9, 3) SH lighting: one tinted directional light from the camera's side, ambient."""
         from morphable.raster import DirectionalLight, sh_from_lights
 
         d = rng.normal(0, 1, 3)
@@ -162,7 +180,7 @@ class SyntheticFaces:
         light = DirectionalLight(d, rng.uniform(0.4, 1.0) * tint)
         return sh_from_lights([light], ambient=rng.uniform(0.25, 0.6) * tint)
 
-    def _random_background(self, rng) -> np.ndarray:
+    def draw_background(self, rng) -> np.ndarray:
         """(R, R, 3) in [0, 1]: a colour gradient plus a few soft blobs."""
         R = self.resolution
         y, x = np.mgrid[0:R, 0:R] / R
@@ -218,7 +236,7 @@ class SyntheticFaces:
         out["identity_id"], out["identity"], out["skin_tone"] = [], [], []
         for _ in range(batch_size):
             if self.n_identities is None:
-                ident, iid = self._random_identity(rng), -1
+                ident, iid = self.draw_identity(rng), -1
             else:
                 iid = int(rng.integers(self.n_identities))
                 ident = self._pool[iid]
@@ -226,9 +244,10 @@ class SyntheticFaces:
             out["identity"].append(ident["identity"])
             out["skin_tone"].append(ident["tone"])
             for v in views:
-                pose = rng.uniform(-1, 1, 3) * self.pose_max
-                r = self.render(ident["identity"], ident["albedo"], self._random_expression(rng),
-                                pose, self._random_light(rng), self._random_background(rng))
+                # pose before expression (draw's order differs): the same batches as always
+                pose = self.draw_pose(rng)
+                r = self.render(ident["identity"], ident["albedo"], self.draw_expression(rng),
+                                pose, self.draw_light(rng), self.draw_background(rng))
                 out[f"image{v}"].append(r["image"].transpose(2, 0, 1) * 2 - 1)
                 out[f"normals{v}"].append(r["normals"].transpose(2, 0, 1))
                 out[f"mask{v}"].append(r["mask"][None])

@@ -42,11 +42,12 @@ import torch.nn.functional as F
 from torch import nn
 
 
-from .checkpoint import load_network
+from .checkpoint import default_inverter_path, load_network
 from .config import GARConfig
 from .gar import EqualConv2d, EqualLinear, lrelu, pixel_norm
 
-__all__ = ["Inverter", "generator_features", "inverter_loss", "load_inverter", "save_inverter"]
+__all__ = ["Inverter", "generator_features", "inverter_loss", "load_inverter", "save_inverter",
+           "inverter_from"]
 
 
 def generator_features(G, normals, z, noise=None):
@@ -139,3 +140,13 @@ def load_inverter(path) -> Inverter:
     V = load_network(path, build, "inverter weights not found", "not an inverter checkpoint")
     V.source = str(path)    # named in the reports of the refinements it starts
     return V
+
+
+def inverter_from(inverter) -> Inverter | None:
+    """The Inverter that ``inverter`` names: "auto" (the committed one if present,
+    :func:`neural.checkpoint.default_inverter_path`), None, a path or an Inverter; or None."""
+    if isinstance(inverter, str) and inverter == "auto":
+        inverter = default_inverter_path()
+    if inverter is None:
+        return None
+    return inverter if isinstance(inverter, Inverter) else load_inverter(inverter)

@@ -1,10 +1,14 @@
 """The ``gar`` renderer plugin: the Generative Adversarial Renderer behind the interface of
-:mod:`morphable.renderers` (entry point ``morphable.renderers: gar``).
+:mod:`morphable.renderers` (entry point ``morphable.renderers: gar``), with its inversion
+hooks.
 
 Weights: ``weights=`` (a ``generator.pt`` / ``checkpoint.pt`` of :mod:`neural.train`), else
-``$MORPHABLE_GAR_WEIGHTS``, else the committed ``neural/weights/gar_tiny.pt``. Without any,
-construction fails with an InputError unless ``allow_untrained=True`` (then an untrained
-generator of ``config``, useful for tests and shapes only).
+``$MORPHABLE_GAR_WEIGHTS``, else the committed ``neural/weights/gar_tiny.pt``
+(:mod:`neural.checkpoint`). Without any, construction fails with an InputError unless
+``allow_untrained=True`` (then an untrained generator of ``config``, useful for tests and
+shapes only). ``inverter=``: the inverting network V that starts an inversion's latent
+("auto": the committed ``neural/weights/inverter_tiny.pt`` if present; None: none; a path or an
+:class:`neural.inverter.Inverter`).
 
 Appearance: ``z`` (B, z_dim) latent, ``noise`` list of per-layer maps eps (B, 1, r, r) as
 from ``Generator.make_noise`` (zeros by default).
@@ -19,37 +23,34 @@ torch.Size([1, 3, 64, 64])
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
 from morphable.errors import InputError
+from morphable.renderers import RendererBase
 
+from .checkpoint import WEIGHTS_ENV, default_generator_path, load_generator
 from .config import get_config
 from .gar import Generator
+from .inverter import inverter_from
 
-__all__ = ["GARRenderer", "default_generator_path", "WEIGHTS_ENV"]
-
-WEIGHTS_ENV = "MORPHABLE_GAR_WEIGHTS"
-
-
-def default_generator_path() -> Path | None:
-    """``$MORPHABLE_GAR_WEIGHTS`` if set, else ``neural/weights/gar_tiny.pt`` if present."""
-    env = os.environ.get(WEIGHTS_ENV)
-    if env:
-        return Path(env)
-    p = Path(__file__).resolve().parent / "weights" / "gar_tiny.pt"
-    return p if p.is_file() else None
+__all__ = ["GARRenderer"]
 
 
-class GARRenderer:
-    """G(n, z, eps) as a renderer: images in [0, 1] at ``resolution`` pixels."""
+class GARRenderer(RendererBase):
+    """G(n, z, eps) as a renderer: images in [0, 1] at ``resolution`` pixels.
+
+    Inverted (:func:`morphable.refinement.refine`), it starts from ``z <- V(image)`` when it
+    has an inverter V (else its default latent) and ``eps <- 0``, moves ``z`` and ``eps``,
+    compares the whole crop (G renders a background too) and holds ``eps`` near 0 by the
+    prior term ``eps`` = sum eps^2.
+    """
+
+    learning_rates = {"z": 0.03, "noise": 0.03}
 
     def __init__(self, weights=None, allow_untrained: bool = False, config: str = "tiny",
-                 seed: int = 0):
-        from .evaluate import load_generator
-
+                 seed: int = 0, inverter="auto"):
         path = Path(weights) if weights else default_generator_path()
         if path is not None:
             self.generator = load_generator(path)
@@ -63,6 +64,7 @@ class GARRenderer:
                              f"${WEIGHTS_ENV}, or train one: python -m neural.train --config tiny)")
         self.resolution = self.generator.config.resolution
         self.seed = seed
+        self.inverter = inverter_from(inverter)
 
     @property
     def z_dim(self) -> int:
@@ -81,3 +83,34 @@ class GARRenderer:
             raise InputError(f"normal map must be (B, 3, H, W), got {tuple(normal_map.shape)}")
         img = self.generator(normal_map.float(), appearance["z"], noise=appearance.get("noise"))
         return ((img + 1) / 2).clamp(0, 1)
+
+    # --- inversion hooks (morphable.renderers.RendererBase) ---------------------------
+    def initial_appearance(self, image, coverage, seed: int = 0) -> tuple[dict, str]:
+        """``z`` = V's latent of ``image`` (1, 3, R, R) in [0, 1] (its prior part drawn with
+        ``seed``) when the renderer has an inverter, else the default one; ``noise`` zero.
+        The description names V's file."""
+        app, _ = super().initial_appearance(image, coverage, seed)
+        V = self.inverter
+        if V is None:
+            return app, "default"
+        with torch.no_grad():
+            app["z"] = V.latent(image * 2 - 1, generator=torch.Generator().manual_seed(seed))
+        return app, f"inverter {V.source}" if getattr(V, "source", None) else "inverter"
+
+    def photometric_mask(self, coverage):
+        """The whole crop: G renders the background too."""
+        return torch.ones_like(coverage)
+
+    def appearance_prior(self, appearance) -> dict:
+        """``eps``: the squared noise maps, summed."""
+        return {"eps": sum(e.pow(2).sum() for e in appearance["noise"])}
+
+    @staticmethod
+    def feature_network():
+        """The encoder stages of the aux normal network N (:mod:`neural.auxnets`): no VGG
+        weights can be downloaded here."""
+        from .auxnets import load_aux
+
+        N = load_aux("N")
+        return (lambda img: N.net.encoder(img * 2 - 1)), "aux N encoder (no VGG weights given)"
+

@@ -30,7 +30,8 @@ import torch
 
 from morphable.errors import InputError, MorphableError
 
-from .auxnets import NAMES, default_weights_path, load_aux
+from .auxnets import NAMES, load_aux
+from .checkpoint import default_aux_path
 from .config import GARConfig, get_config
 from .gar import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty
@@ -306,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE",
                    help="override config fields, e.g. lambda_n=0 sample_every=50")
     p.add_argument("--aux-dir", help="folder with aux_N.pt, aux_P.pt, aux_L.pt, aux_R.pt "
-                                     f"(default {default_weights_path('N').parent})")
+                                     f"(default {default_aux_path('N').parent})")
     p.add_argument("--untrained-aux", action="store_true",
                    help="use randomly initialised aux networks (smoke tests only)")
     p.add_argument("--images", help="folder of face photos for the discriminator (FFHQ-style)")

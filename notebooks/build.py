@@ -228,10 +228,9 @@ by the normal maps — the cells show the mechanics, not the quality of a traine
 
 import torch
 
+from neural.checkpoint import default_generator_path, load_generator
 from neural.config import get_config
-from neural.evaluate import load_generator
 from neural.gar import Generator
-from neural.renderer import default_generator_path
 
 torch.manual_seed(0)
 # the first generator found: $MORPHABLE_GAR_WEIGHTS or the committed weights, then a run
@@ -335,14 +334,14 @@ assert losses[-1] < losses[0]'''),
 
 The paper's method on a real photo: landmark fit (α, β, θ), then `z ← V(crop)` (the committed
 inverter, when there is one), `ε ← 0`, then Adam over α, β, θ, z, ε through the fixed GAR
-(`neural.reconstruct.refine`; `morphable fit IMAGE --refine gar` on the command line). Few steps
+(`morphable.refinement.refine`; `morphable fit IMAGE --refine gar` on the command line). Few steps
 here to keep the notebook quick; the CLI default is 100."""),
         new_code_cell('''\
 from PIL import Image
 
 from morphable.fitting import fit_landmarks
 from morphable.io.landmarks import read_pts
-from neural.reconstruct import edit, refine
+from morphable.refinement import edit, refine
 
 photo_path = DATA / "images" / "image_0010.png"
 photo = np.asarray(Image.open(photo_path).convert("RGB"))
@@ -368,8 +367,8 @@ assert np.isfinite(turned).all() and np.abs(turned - state.rendered).mean() > 1e
 
 ```
 python -m neural.train --config tiny --out runs/tiny            # train your own, then rerun
-python -m neural.evaluate --report reports/gar.json --generator runs/tiny/generator.pt
-python -m neural.ablate --report ablate.json                    # the reconstruction ablations
+python -m evaluation.gar_quality --report reports/gar.json --generator runs/tiny/generator.pt
+python -m evaluation.gar_ablation --report ablate.json          # the reconstruction ablations
 ```"""),
     ]
 

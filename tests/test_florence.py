@@ -470,7 +470,7 @@ def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
     assert all(p["s_per_video"] > 0 and abs(p["mean_mm"] - start["mean_mm"]) < 0.5
                for p in gar.values())
     # without the neural plugin: a one-line error before any video is made
-    monkeypatch.setitem(sys.modules, "neural.reconstruct", None)
+    monkeypatch.setitem(sys.modules, "neural.renderer", None)
     monkeypatch.setattr(report, "video_landmarks", lambda *a, **k: pytest.fail("rendered"))
     with pytest.raises(InputError, match="neural plugin is not installed"):
         report.run(james, sfm, ["ours-independent", "gar"], ["outdoor"], video_frames=6)

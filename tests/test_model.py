@@ -41,6 +41,28 @@ def test_vertices_batched_and_rows(sfm, dtype):
     np.testing.assert_allclose(full[0], ref, atol=tol * 10)
 
 
+def test_vertices_torch_forward_pass(sfm):
+    """Torch coefficients in: torch vertices out, batch first, the numpy values, and gradients
+    equal to the bases (the forward pass is linear)."""
+    torch = pytest.importorskip("torch")
+    rng = np.random.default_rng(1)
+    a, b = rng.standard_normal((2, 10)), rng.uniform(0, 1, (2, 6))
+    at = torch.tensor(a, requires_grad=True)
+    v = sfm.vertices(at, torch.tensor(b))
+    assert isinstance(v, torch.Tensor) and v.shape == (2, 3448, 3) and v.dtype == torch.float64
+    np.testing.assert_allclose(v.detach().numpy(), sfm.vertices(a, b), atol=1e-9)
+    v[1, 7, 2].backward()
+    np.testing.assert_allclose(at.grad[1].numpy(), sfm.identity_basis[:10, 7, 2], atol=1e-12)
+    assert not at.grad[0].any()
+    # float32 in, float32 out; numpy or no expression alongside
+    one = sfm.vertices(torch.tensor(a[0], dtype=torch.float32), b[0])
+    assert one.dtype == torch.float32 and one.shape == (3448, 3)
+    np.testing.assert_allclose(one.numpy(), sfm.vertices(a[0], b[0]), atol=1e-3)
+    assert torch.equal(sfm.vertices(torch.zeros(0)), torch.as_tensor(sfm.mean, dtype=torch.float32))
+    with pytest.raises(InputError, match="64 coefficients"):
+        sfm.vertices(torch.zeros(64))
+
+
 def test_partial_coefficients_and_mean(sfm):
     np.testing.assert_allclose(sfm.vertices(), sfm.mean)
     v = sfm.vertices([1.0, 0.0])

@@ -51,7 +51,7 @@ def test_synthetic_deterministic_and_posed(data_dir):
     assert torch.equal(a["image"], b["image"]) and torch.equal(a["normals"], b["normals"])
     # the face turns with the yaw: the nose tip (landmark 30) moves right for positive yaw
     rng = np.random.default_rng(0)
-    ident = data._random_identity(rng)
+    ident = data.draw_identity(rng)
     e = np.zeros(data.model.n_expression)
     sh = np.zeros((9, 3))
     sh[0] = 1

@@ -10,11 +10,11 @@ from morphable.camera import Camera  # noqa: E402
 from morphable.cli import main  # noqa: E402
 from morphable.fitting import fit_landmarks  # noqa: E402
 from morphable.raster import DirectionalLight, render, sh_from_lights  # noqa: E402
+from morphable.refinement import crop_camera, crop_image, edit, face_crop, refine  # noqa: E402
 from neural.config import get_config  # noqa: E402
 from neural.gar import Generator  # noqa: E402
 from neural.gar import pixel_norm  # noqa: E402
 from neural.inverter import Inverter, inverter_loss, load_inverter, save_inverter  # noqa: E402
-from neural.reconstruct import crop_camera, crop_image, edit, face_crop, refine  # noqa: E402
 from neural.renderer import GARRenderer  # noqa: E402
 
 
@@ -34,6 +34,13 @@ def synthetic(sfm):
     lm = cam.project(sfm.landmark_positions(alpha, beta))
     fit = fit_landmarks(sfm, lm[None], np.array([[200.0, 200.0]]), n_iterations=3)
     return image, fit, verts
+
+
+def test_face_crop_is_the_training_framing():
+    from neural.data import template
+
+    left, top, side = face_crop(template(64))
+    assert round(side, 1) == 64.0 and round(left + side / 2, 1) == 32.0  # the template fills its crop
 
 
 def test_crop_camera_maps_pixels():
@@ -78,9 +85,9 @@ def test_classical_refinement_lowers_photometric_loss(synthetic, sfm):
 def test_gar_refinement_runs_untrained(synthetic):
     image, fit, _ = synthetic
     torch.manual_seed(0)
-    r = GARRenderer(allow_untrained=True)
-    V = Inverter(r.generator.config).eval()
-    new, report, state = refine(image, fit, r, steps=3, inverter=V, return_state=True)
+    V = Inverter(get_config("tiny")).eval()
+    r = GARRenderer(allow_untrained=True, inverter=V)
+    new, report, state = refine(image, fit, r, steps=3, return_state=True)
     assert report["latent_init"] == "inverter" and len(report["photometric_loss"]) == 4
     assert np.isfinite(report["loss"]).all() and np.isfinite(new.expression).all()
     assert state.rendered.shape == (64, 64, 3)
@@ -140,7 +147,7 @@ def test_cli_fit_refine_and_edit(data_dir, tmp_path, capsys):
 
 
 def test_ablation_smoke(tmp_path):
-    from neural.ablate import held_out_faces, plot_curves, run_ablation
+    from evaluation.gar_ablation import held_out_faces, plot_curves, run_ablation
 
     torch.manual_seed(0)
     G = Generator(get_config("tiny"))
@@ -166,7 +173,7 @@ def test_ablation_smoke(tmp_path):
 
 def test_corrupt_weight_files_give_one_line_errors(tmp_path):
     from morphable import InputError
-    from neural.evaluate import load_generator
+    from neural.checkpoint import load_generator
     from neural.inverter import load_inverter
 
     bad = tmp_path / "bad.pt"
@@ -178,8 +185,8 @@ def test_corrupt_weight_files_give_one_line_errors(tmp_path):
 
 
 def test_refine_frames_one_mesh_per_frame(tmp_path):
-    from neural.ablate import held_out_faces
-    from neural.reconstruct import refine_frames
+    from evaluation.gar_ablation import held_out_faces
+    from morphable.refinement import refine_frames
 
     model, faces = held_out_faces(2, image_size=96)
     images = np.stack([f["image"] for f in faces])
@@ -198,7 +205,7 @@ def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):
     import dataclasses
 
     from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
-    from neural.reconstruct import landmark_trust
+    from morphable.refinement import landmark_trust
 
     _, fit, _ = synthetic
     assert landmark_trust(fit) == pytest.approx(1.0)

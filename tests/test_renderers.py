@@ -24,6 +24,9 @@ def test_discovery():
     assert "classical" in names and "gar" in names
     with pytest.raises(InputError, match="not installed"):
         get_renderer("no-such-renderer")
+    # an option the renderer does not take: a one-line error, not a TypeError
+    with pytest.raises(InputError, match="'classical'.*inverter"):
+        get_renderer("classical", inverter="v.pt")
 
 
 def test_classical_brightness_follows_n_dot_l():
@@ -62,11 +65,12 @@ def test_classical_is_differentiable():
 
 def test_gar_needs_weights(monkeypatch, tmp_path):
     import neural.renderer as nr
+    from neural.checkpoint import WEIGHTS_ENV
 
-    monkeypatch.setenv(nr.WEIGHTS_ENV, str(tmp_path / "missing.pt"))
+    monkeypatch.setenv(WEIGHTS_ENV, str(tmp_path / "missing.pt"))
     with pytest.raises(InputError, match="missing.pt"):
         get_renderer("gar")
-    monkeypatch.delenv(nr.WEIGHTS_ENV)
+    monkeypatch.delenv(WEIGHTS_ENV)
     monkeypatch.setattr(nr, "default_generator_path", lambda: None)
     with pytest.raises(InputError, match="no generator weights"):
         get_renderer("gar")
@@ -80,6 +84,51 @@ def test_gar_needs_weights(monkeypatch, tmp_path):
     assert 0 <= float(img.detach().min()) and float(img.detach().max()) <= 1
     img.mean().backward()
     assert float(app["z"].grad.abs().sum()) > 0
+
+
+def test_inversion_hooks():
+    """What refinement asks a renderer: the start, the pixels compared, the prior, the
+    constraint and the features; the defaults for a renderer that says nothing."""
+    from morphable.renderers import RendererBase, plugin_feature_network
+    from neural.inverter import Inverter
+
+    image = torch.rand(1, 3, 64, 64)
+    cover = torch.zeros(1, 1, 64, 64)
+    cover[..., 20:40, 20:40] = 1.0
+    classical = get_renderer("classical")
+    app, init = classical.initial_appearance(image, cover)
+    assert init is None and set(app) == {"sh", "albedo", "background"}
+    torch.testing.assert_close(app["albedo"][0], image[0, :, 20:40, 20:40].mean((1, 2)))
+    assert app["sh"][0, 0].tolist() == [1.0, 1.0, 1.0] and not app["sh"][0, 1:].any()
+    assert classical.photometric_mask(cover) is cover and classical.appearance_prior(app) == {}
+    app["albedo"] += 2
+    classical.constrain_appearance(app)
+    assert float(app["albedo"].max()) == 1.0
+    assert set(classical.learning_rates) == {"sh", "albedo"}
+
+    gar = get_renderer("gar", allow_untrained=True, inverter=None)
+    app, init = gar.initial_appearance(image, cover)
+    assert init == "default" and torch.equal(app["z"], gar.default_appearance(1)["z"])
+    gar.inverter = Inverter(gar.generator.config).eval()
+    app, init = gar.initial_appearance(image, cover, seed=3)
+    assert init == "inverter" and not torch.equal(app["z"], gar.default_appearance(1)["z"])
+    assert bool((gar.photometric_mask(cover) == 1).all())
+    app["noise"][0] += 0.5
+    prior = gar.appearance_prior(app)
+    assert set(prior) == {"eps"} and float(prior["eps"]) == pytest.approx(0.25 * app["noise"][0].numel())
+
+    # the classical renderer has no features of its own; the installed gar plugin offers N's
+    assert classical.feature_network() is None
+    fn, name = plugin_feature_network()
+    assert name.startswith("aux N encoder") and isinstance(fn(image), list)
+
+    class Minimal(RendererBase):
+        def default_appearance(self, batch_size=1):
+            return {"colour": torch.ones(batch_size, 3)}
+
+    app, init = Minimal().initial_appearance(image, cover)
+    assert init is None and torch.equal(app["colour"], torch.ones(1, 3))
+    assert Minimal().photometric_mask(cover) is cover and Minimal.learning_rates == {}
 
 
 def test_import_does_not_load_torch():

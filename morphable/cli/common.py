@@ -38,6 +38,16 @@ def landmark_std_arg(text: str):
     return value
 
 
+def renderer_options(inverter=None, what: str = "--refine") -> dict:
+    """``get_renderer``'s options for a refinement: ``--inverter`` (the gar renderer's V) only
+    when given. A one-line error first when torch (the neural extra) is missing."""
+    try:
+        import torch  # noqa: F401
+    except ImportError as e:
+        raise InputError(f"{what} needs the neural extra: pip install -e '.[neural]' ({e})") from None
+    return {"inverter": inverter} if inverter else {}
+
+
 def model_from(args):
     return load_model(args.model)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_model_argument, model_from, parse_weights
+from .common import add_model_argument, model_from, parse_weights, renderer_options
 
 
 def add_parser(sub):
@@ -54,18 +54,16 @@ def run(args):
         w = parse_weights(model, [item])          # validates the name and the number
         name = item.partition("=")[0]
         expression[name] = w[model.expression_index(name)]
-    try:
-        from neural.reconstruct import edit, refine
-    except ImportError as e:
-        raise InputError(f"edit needs the neural extra: pip install -e '.[neural]' ({e})") from None
+    options = renderer_options(args.inverter, what="edit")
     from ..fitting.detect import read_image
     from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
     from ..raster import save_image_png
+    from ..refinement import edit, refine
 
     res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model)
     fit, report, state = refine(read_image(args.image), res, args.renderer, steps=args.steps,
-                                inverter=args.inverter or "auto", return_state=True)
+                                renderer_options=options, return_state=True)
     edited = edit(state, yaw=args.yaw, pitch=args.pitch, roll=args.roll, expression=expression)
     img = edited if args.only_edit else np.concatenate([state.target, state.rendered, edited], 1)
     img = img.repeat(args.zoom, 0).repeat(args.zoom, 1)

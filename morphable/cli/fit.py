@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_fitting_arguments, add_model_argument, model_from
+from .common import add_fitting_arguments, add_model_argument, model_from, renderer_options
 
 
 def add_parser(sub):
@@ -84,17 +84,15 @@ def run(args):
 
 
 def _refine(args, res, report, images):
-    """Photometric refinement of every frame (:func:`neural.reconstruct.refine`)."""
-    try:
-        from neural.reconstruct import refine
-    except ImportError as e:
-        raise InputError(f"--refine needs the neural extra: pip install -e '.[neural]' ({e})") from None
+    """Photometric refinement of every frame (:func:`morphable.refinement.refine`)."""
     from ..fitting.detect import read_image
+    from ..refinement import refine
 
+    options = renderer_options(args.inverter)
     runs = []
     for i, path in enumerate(images):
         res, rep, state = refine(read_image(path), res, args.refine, steps=args.steps, frame=i,
-                                 inverter=args.inverter or "auto", return_state=True)
+                                 renderer_options=options, return_state=True)
         runs.append(rep)
         if i == 0 and args.refine_render:
             import numpy as np

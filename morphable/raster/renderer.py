@@ -1,8 +1,9 @@
 """The ``classical`` renderer plugin: Lambertian shading of a normal map under a 9-coefficient
 spherical-harmonics environment with a uniform albedo, in torch (differentiable).
 
-It implements the interface of :mod:`morphable.renderers` and is registered under the entry
-point ``morphable.renderers: classical``. torch loads when a renderer is constructed.
+It implements the interface of :mod:`morphable.renderers` (with its inversion hooks) and is
+registered under the entry point ``morphable.renderers: classical``. torch loads when a
+renderer renders.
 
 Appearance parameters (all torch tensors, batch first):
 
@@ -25,13 +26,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from ..renderers import RendererBase
 from .shading import DirectionalLight, sh_from_lights, shade_sh
 
 __all__ = ["ClassicalRenderer"]
 
 
-class ClassicalRenderer:
+class ClassicalRenderer(RendererBase):
     """Lambertian + SH shading of camera-frame normal maps (any resolution).
+
+    Inverted (:func:`morphable.refinement.refine`), it starts from the mean colour of the
+    face pixels under a uniform white environment and moves ``sh`` and ``albedo`` (the
+    background stays), on the face pixels only.
 
     Parameters
     ----------
@@ -41,6 +47,7 @@ class ClassicalRenderer:
     """
 
     resolution = None
+    learning_rates = {"sh": 0.02, "albedo": 0.01}
 
     def __init__(self, albedo=(0.7, 0.5, 0.4), light_direction=(0.3, 0.4, 1.0), ambient=0.4,
                  background=(0.0, 0.0, 0.0)):
@@ -57,6 +64,23 @@ class ClassicalRenderer:
         def rep(a):
             return torch.tensor(a, dtype=torch.float32).expand(batch_size, *a.shape).clone()
         return {"sh": rep(self.sh), "albedo": rep(self.albedo), "background": rep(self.background)}
+
+    def initial_appearance(self, image, coverage, seed: int = 0) -> tuple[dict, None]:
+        """The albedo: the mean colour of the face pixels (coverage > 0.5) of ``image``
+        (1, 3, R, R); the light: a uniform white environment."""
+        import torch
+
+        app, _ = super().initial_appearance(image, coverage, seed)
+        face = coverage[0, 0] > 0.5
+        if face.any():
+            app["albedo"] = image[0][:, face].mean(1)[None].clamp(0.02, 1)
+        app["sh"] = torch.zeros(1, 9, 3)
+        app["sh"][:, 0] = 1.0
+        return app, None
+
+    def constrain_appearance(self, appearance) -> None:
+        """Albedo in [0, 1]."""
+        appearance["albedo"].clamp_(0, 1)
 
     def render(self, normal_map, appearance: dict):
         """(B, 3, H, W) camera-frame normals (zero outside the face; shorter than unit on the

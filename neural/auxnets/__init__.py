@@ -25,17 +25,12 @@ from torch import nn
 
 from morphable.errors import InputError
 
+from ..checkpoint import default_aux_path
 from .nets import NETS, soft_argmax
 
-__all__ = ["load_aux", "save_aux", "build_aux", "default_weights_path", "NAMES"]
+__all__ = ["load_aux", "save_aux", "build_aux", "NAMES"]
 
 NAMES = tuple(NETS)
-WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
-
-
-def default_weights_path(name: str) -> Path:
-    """Where the committed weights of aux net ``name`` live (``neural/weights/aux_N.pt``...)."""
-    return WEIGHTS_DIR / f"aux_{name}.pt"
 
 
 def build_aux(name: str, width: int = 16) -> nn.Module:
@@ -156,7 +151,7 @@ def load_aux(name: str, weights=None, pretrained: bool = True, width: int = 16,
     elif not pretrained:
         net, where = build_aux(name, width), f"aux network {name!r}"
     else:
-        path = default_weights_path(name)
+        path = default_aux_path(name)
         if not path.is_file():
             raise InputError(f"{path}: no trained weights for aux network {name!r}; train them "
                              f"with `python -m neural.auxnets.train` or pass weights=")

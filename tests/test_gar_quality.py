@@ -7,8 +7,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from neural.auxnets.nets import soft_argmax  # noqa: E402
-from neural.evaluate import (frechet_distance, identity_consistency,  # noqa: E402
-                             landmark_consistency, normal_consistency)
+from evaluation.gar_quality import (frechet_distance, identity_consistency,  # noqa: E402
+                                    landmark_consistency, normal_consistency)
 
 
 class _Identity(torch.nn.Module):
@@ -68,7 +68,7 @@ def test_report_end_to_end(tmp_path, data_dir):
     from neural.auxnets import save_aux
     from neural.auxnets.nets import NETS
     from neural.config import get_config
-    from neural.evaluate import main
+    from evaluation.gar_quality import main
     from neural.gar import Generator
 
     cfg = get_config("tiny", resolution=32, channel_base=256, channel_max=32, z_dim=16, w_dim=16)
@@ -103,10 +103,11 @@ def test_report_end_to_end(tmp_path, data_dir):
 def test_committed_aux_weights_quality(data_dir):
     """The committed N, P, L work on renders they never saw (seeds outside training)."""
     pytest.importorskip("open3d")
-    from neural.auxnets import default_weights_path, load_aux
+    from neural.auxnets import load_aux
+    from neural.checkpoint import default_aux_path
     from neural.data import SyntheticFaces
 
-    if not default_weights_path("N").is_file():
+    if not default_aux_path("N").is_file():
         pytest.skip("no committed aux weights")
     aux = {n: load_aux(n) for n in "NPL"}
     data = SyntheticFaces(resolution=64)
@@ -124,10 +125,11 @@ def test_committed_aux_weights_quality(data_dir):
 def test_committed_identity_net_separates_unseen_faces(data_dir):
     """R: two views of one unseen face are closer than views of different faces."""
     pytest.importorskip("open3d")
-    from neural.auxnets import default_weights_path, load_aux
+    from neural.auxnets import load_aux
+    from neural.checkpoint import default_aux_path
     from neural.data import SyntheticFaces
 
-    if not default_weights_path("R").is_file():
+    if not default_aux_path("R").is_file():
         pytest.skip("no committed R weights")
     R = load_aux("R")
     p = SyntheticFaces(resolution=64, seed=77).sample(12, rng=[98, 2**40], pair=True)
@@ -143,10 +145,9 @@ def test_committed_gar_keeps_geometry_better_than_no_norm_cycle(data_dir):
     """The committed tiny GAR follows its input normal map more closely than the same
     training without the normal-consistency loss (the paper's "w/o norm-cycle")."""
     pytest.importorskip("open3d")
-    from neural.ablate import default_no_norm_cycle_path
+    from evaluation.gar_quality import evaluate
     from neural.auxnets import NAMES, load_aux
-    from neural.evaluate import evaluate, load_generator
-    from neural.renderer import default_generator_path
+    from neural.checkpoint import default_generator_path, default_no_norm_cycle_path, load_generator
 
     g, g0 = default_generator_path(), default_no_norm_cycle_path()
     if g is None or g0 is None:

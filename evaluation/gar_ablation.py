@@ -1,11 +1,11 @@
 """Reconstruction ablations on held-out synthetic faces with known geometry:
-``python -m neural.ablate --report ablate.json [--faces 8] [--steps 60]``.
+``python -m evaluation.gar_ablation --report ablate.json [--faces 8] [--steps 60]``.
 
 Variants (paper Table 3 style):
 
 - ``landmark-only``: :func:`morphable.fitting.fit_landmarks` on the projected landmarks
   (plus Gaussian pixel noise, ``--landmark-noise``);
-- ``landmarks-refit``: then :func:`neural.reconstruct.refine` with the photometric terms
+- ``landmarks-refit``: then :func:`morphable.refinement.refine` with the photometric terms
   off (landmarks and priors only, in the crop camera): what the photometric terms add is
   measured against this;
 - ``classical``: refine with the Lambertian + SH renderer;
@@ -34,25 +34,22 @@ import numpy as np
 
 from morphable.errors import InputError, one_line_errors
 
-__all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves",
-           "default_no_norm_cycle_path", "main"]
+__all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves", "main"]
 
 
 def held_out_faces(n: int, image_size: int = 256, seed: int = 12345):
     """n dicts: ``image`` (S, S, 3) [0, 1], ``landmarks`` (68, 2) px, ``vertices`` (V, 3) mm."""
-    from .data import SyntheticFaces
+    from neural.data import SyntheticFaces
 
     faces = SyntheticFaces(resolution=image_size)
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
-        ident = faces._random_identity(rng)
-        expr = faces._random_expression(rng)
-        pose = rng.uniform(-1, 1, 3) * faces.pose_max
-        r = faces.render(ident["identity"], ident["albedo"], expr, pose, faces._random_light(rng),
-                         faces._random_background(rng))
+        p = faces.draw(rng)
+        r = faces.render(p["identity"], p["albedo"], p["expression"], p["pose"], p["sh"],
+                         p["background"])
         out.append({"image": r["image"], "landmarks": r["landmarks"],
-                    "vertices": faces.model.vertices(ident["identity"], expr)})
+                    "vertices": faces.model.vertices(p["identity"], p["expression"])})
     return faces.model, out
 
 
@@ -67,12 +64,6 @@ def geometry_errors(model, fit, true_vertices) -> tuple[float, float]:
     return _vertex_error(v, true_vertices), float(ang.mean())
 
 
-def default_no_norm_cycle_path() -> Path | None:
-    """``neural/weights/gar_tiny_no_norm_cycle.pt`` (the lambda_n = 0 generator) if committed."""
-    p = Path(__file__).resolve().parent / "weights" / "gar_tiny_no_norm_cycle.pt"
-    return p if p.is_file() else None
-
-
 def _vertex_error(vertices, true_vertices) -> float:
     """Mean distance (mm) between corresponding vertices."""
     return float(np.linalg.norm(vertices - true_vertices, axis=1).mean())
@@ -81,27 +72,29 @@ def _vertex_error(vertices, true_vertices) -> float:
 def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto", inverter="auto",
                  landmark_noise=1.0, seed=0, progress=True) -> dict:
     from morphable.fitting import fit_landmarks
-
-    from .reconstruct import default_inverter_path, refine
-    from .renderer import GARRenderer
+    from morphable.refinement import refine
+    from neural.checkpoint import default_inverter_path, default_no_norm_cycle_path
+    from neural.inverter import inverter_from
+    from neural.renderer import GARRenderer
 
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter
+    V = inverter_from(inv)          # read once, shared by the GAR variants
     n0 = default_no_norm_cycle_path() if generator_n0 == "auto" else generator_n0
-    # name -> None (the landmark fit itself) or (renderer, inverter, loss weight overrides)
+    # name -> None (the landmark fit itself) or (renderer, loss weight overrides)
     variants = {"landmark-only": None,
-                "landmarks-refit": ("classical", None, {"photo": 0.0, "feat": 0.0}),
-                "classical": ("classical", None, None)}
+                "landmarks-refit": ("classical", {"photo": 0.0, "feat": 0.0}),
+                "classical": ("classical", None)}
     notes = {}
     try:
-        gar = GARRenderer(weights=generator)
-        variants["gar"] = (gar, inv, None)
-        variants["gar-no-initial"] = (gar, None, None)
+        gar = GARRenderer(weights=generator, inverter=V)
+        variants["gar"] = (gar, None)
+        variants["gar-no-initial"] = (GARRenderer(weights=generator, inverter=None), None)
         notes["generator"] = gar.weights
     except InputError as e:       # no weights: the GAR variants are skipped and say why
         notes["generator"] = f"unavailable ({e})"
     if n0:
-        variants["gar-no-norm-cycle"] = (GARRenderer(weights=n0), inv, None)
+        variants["gar-no-norm-cycle"] = (GARRenderer(weights=n0, inverter=V), None)
         notes["generator_n0"] = str(n0)
     notes["inverter"] = str(inv) if inv else None
     results = {k: {"vertex_mm": [], "normal_deg": [], "s_per_image": []} for k in variants}
@@ -118,9 +111,9 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
             if spec is None:
                 res, secs = fit, t_fit
             else:
-                renderer, inv_spec, weights = spec
-                res, rep = refine(face["image"], fit, renderer, steps=steps, inverter=inv_spec,
-                                  trace_every=every, weights=weights)
+                renderer, weights = spec
+                res, rep = refine(face["image"], fit, renderer, steps=steps, trace_every=every,
+                                  weights=weights)
                 secs = t_fit + time.perf_counter() - t
                 curves[name]["vertex_mm"].append(
                     [_vertex_error(model.vertices(np.asarray(p["alpha"]), np.asarray(p["beta"])),
@@ -169,9 +162,10 @@ def plot_curves(report: dict, path) -> None:
     plt.close(fig)
 
 
-@one_line_errors("neural.ablate")
+@one_line_errors("evaluation.gar_ablation")
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neural.ablate", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m evaluation.gar_ablation",
+                                description=__doc__.splitlines()[0])
     p.add_argument("--report", required=True, help="output JSON")
     p.add_argument("--faces", type=int, default=8)
     p.add_argument("--steps", type=int, default=60)
@@ -195,7 +189,7 @@ def main(argv=None) -> int:
     report = run_ablation(faces, model, steps=args.steps, generator=args.generator,
                           generator_n0=args.generator_n0, inverter=args.inverter,
                           landmark_noise=args.landmark_noise)
-    report["command"] = "python -m neural.ablate " + " ".join(argv if argv is not None else sys.argv[1:])
+    report["command"] = "python -m evaluation.gar_ablation " + " ".join(argv if argv is not None else sys.argv[1:])
     from morphable.io.atomic import atomic_path
 
     with atomic_path(out) as tmp:

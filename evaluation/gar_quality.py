@@ -1,4 +1,4 @@
-"""Quality report of a trained GAR: ``python -m neural.evaluate --report gar.json``.
+"""Quality report of a trained GAR: ``python -m evaluation.gar_quality --report gar.json``.
 
 On held-out synthetic faces (seeds never used in training) it measures, for each renderer
 (``gar``; ``gar_no_norm_cycle``, the GAR trained with lambda_n = 0; ``classical``, the
@@ -33,29 +33,15 @@ import numpy as np
 import torch
 
 from morphable.errors import MorphableError, one_line_errors
+from neural.auxnets import NAMES, load_aux
+from neural.checkpoint import GENERATOR_FILE, default_no_norm_cycle_path, load_generator
 
-from .auxnets import NAMES, load_aux
-from .checkpoint import load_network
-from .config import GARConfig
-from .gar import Generator
-
-__all__ = ["load_generator", "normal_consistency", "landmark_consistency",
+__all__ = ["normal_consistency", "landmark_consistency",
            "identity_consistency", "frechet_distance", "load_inception", "inception_features",
            "evaluate", "main"]
 
 METRICS = ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
            "fid_aux", "fid_inception")
-
-
-def load_generator(path, ema: bool = True) -> Generator:
-    """A Generator (eval mode) from ``generator.pt`` or ``checkpoint.pt`` of neural.train;
-    from a checkpoint, ``ema=False`` takes the raw generator instead of its moving average."""
-    def build(ckpt):
-        G = Generator(GARConfig.from_dict(ckpt["config"]))
-        G.load_state_dict(ckpt["G_ema"] if ema and "G_ema" in ckpt else ckpt["G"])
-        return G
-
-    return load_network(path, build, "generator weights not found", "not a GAR checkpoint")
 
 
 @torch.no_grad()
@@ -139,7 +125,7 @@ def inception_features(net, images, batch_size: int = 16) -> np.ndarray:
 
 
 def _grid(G, normals, path, n_latents=8, seed=0):
-    from .train import normal_to_rgb, save_grid
+    from neural.train import normal_to_rgb, save_grid
 
     gen = torch.Generator().manual_seed(seed)
     z = torch.randn(n_latents, G.config.z_dim, generator=gen)
@@ -155,7 +141,7 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
     Lambertian renders (``"classical"``) on ``n_faces`` held-out synthetic faces (pairs):
     ``{metric: {renderer: value}}`` for the metrics of :data:`METRICS`; ``inception`` (a
     feature network, see :func:`load_inception`) adds ``fid_inception``."""
-    from .data import SyntheticFaces
+    from neural.data import SyntheticFaces
 
     cfg = next(iter(generators.values())).config
     data = SyntheticFaces.from_config(cfg)
@@ -209,11 +195,12 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
     return report
 
 
-@one_line_errors("neural.evaluate")
+@one_line_errors("evaluation.gar_quality")
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neural.evaluate", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m evaluation.gar_quality",
+                                description=__doc__.splitlines()[0])
     p.add_argument("--report", required=True, help="output JSON")
-    p.add_argument("--generator", default=str(Path(__file__).parent / "weights" / "gar_tiny.pt"))
+    p.add_argument("--generator", default=str(GENERATOR_FILE))
     p.add_argument("--ablation", default="auto",
                    help="generator trained with lambda_n = 0, reported as gar_no_norm_cycle "
                         "(default: the committed weights/gar_tiny_no_norm_cycle.pt if present; "
@@ -230,8 +217,6 @@ def main(argv=None) -> int:
     gens = {"gar": load_generator(args.generator, not args.raw)}
     ablation = args.ablation
     if ablation == "auto":
-        from .ablate import default_no_norm_cycle_path
-
         ablation = default_no_norm_cycle_path()
     if ablation and str(ablation) != "none":
         gens["gar_no_norm_cycle"] = load_generator(ablation, not args.raw)

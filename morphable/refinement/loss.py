@@ -1,0 +1,106 @@
+"""The refinement's loss: its weights, the perceptual features and the loss closure."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .geometry import project_points
+
+__all__ = ["DEFAULT_WEIGHTS", "landmark_trust", "loss_weights", "perceptual_features",
+           "loss_function"]
+
+DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha": 1e-3,
+                   "beta": 1e-4}
+"""Loss weights of :func:`morphable.refinement.refine`; landmark residuals are in pixels of
+the renderer resolution, photometric ones in [0, 1] intensity; ``eps`` weighs the gar
+renderer's appearance prior (its noise maps). ``lmk`` is the weight of annotated
+landmarks; a frame the landmark fit gave a larger model error (detected landmarks,
+``DETECTED_MODEL_STD_MM``) has it scaled down by its landmark variance
+(:func:`landmark_trust`). ``lmk`` and ``alpha`` were chosen on 4 validation faces
+(``evaluation.gar_ablation.held_out_faces(4, seed=777)``, not the ablation's): mean vertex
+error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
+alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
+1e-3: 2.99 / 2.88 mm (chosen). Moving only the appearance for the first 50 steps changed
+little (3.01 / 2.93 mm) and was not kept."""
+
+
+def landmark_trust(fit, frame: int = 0) -> float:
+    """How much the landmark fit trusted frame ``frame``'s landmarks relative to annotated ones:
+    ``(s^2 + (k m_0)^2) / (s^2 + (k m)^2)`` with ``s`` its landmark noise (px), ``m`` its model
+    error (mm; ``m_0`` = ``MODEL_STD_MM``, annotations) and ``k`` the image scale at the face
+    (px/mm). 1 for annotated landmarks, about 0.02 for detected ones (10 mm) at 3 px/mm; 1 when
+    the fit does not record them. A detector's errors are face-shaped and shared by a video's
+    frames: the refinement must not pull the face onto them harder than the fit did."""
+    from ..fitting.landmark_fit import MODEL_STD_MM
+
+    m = np.asarray(fit.model_std_mm, dtype=np.float64)
+    if not len(m):
+        return 1.0
+    s2 = float(fit.landmark_std_px[frame]) ** 2 if len(fit.landmark_std_px) else 1.0
+    ids = np.asarray(fit.landmark_vertices[frame])
+    pts = fit.model.vertices_at(ids[ids >= 0], fit.frame_identity[frame], fit.expression[frame])
+    k = float(fit.cameras[frame].px_per_mm(pts.mean(0)))
+    return float((s2 + (k * MODEL_STD_MM) ** 2) / (s2 + (k * m[frame]) ** 2))
+
+
+def loss_weights(fit, frame: int, weights: dict | None = None) -> dict:
+    """:data:`DEFAULT_WEIGHTS` with the overrides ``weights``, ``lmk`` scaled by
+    :func:`landmark_trust`."""
+    lam = {**DEFAULT_WEIGHTS, **(weights or {})}
+    return {**lam, "lmk": lam["lmk"] * landmark_trust(fit, frame)}
+
+
+def perceptual_features(features, renderer):
+    """-> (callable image (B, 3, H, W) in [0, 1] -> list of feature maps, or None; its name).
+
+    ``features``: None (the renderer's ``feature_network``, else the first an installed
+    renderer plugin offers, else none), a callable, or the path of a TorchScript network."""
+    if features is None:
+        from ..renderers import plugin_feature_network
+
+        return renderer.feature_network() or plugin_feature_network() or (None, "none")
+    if callable(features):
+        return features, "user feature network"
+    import torch
+
+    path = Path(features)
+    if not path.is_file():
+        raise InputError(f"{path}: feature network not found")
+    try:
+        net = torch.jit.load(str(path), map_location="cpu").eval()
+    except (RuntimeError, ValueError) as e:
+        raise InputError(f"{path}: not a TorchScript feature network ({e})") from None
+    return (lambda img: list(net(img))), f"TorchScript {path.name}"
+
+
+def loss_function(problem, unknowns, renderer, weights: dict, features=None):
+    """The loss of ``unknowns`` on ``problem`` -> callable () -> (total, terms, image): the
+    weighted total, each term (scalar tensors; names as in ``weights``) and the render
+    (1, 3, R, R). ``features``: a feature network of :func:`perceptual_features` or None."""
+    from ..raster import normal_map
+
+    model, u = problem.fit.model, unknowns
+    target = problem.image
+    mask = renderer.photometric_mask(problem.coverage)
+    target_feats = [f.detach() for f in features(target)] if features else []
+
+    def losses():
+        verts = model.vertices(u.alpha, u.beta)
+        Rt = u.rotation()
+        n = normal_map(verts, model.triangles, vis=problem.vis, rotation=Rt)      # (R, R, 3)
+        img = renderer.render(n.permute(2, 0, 1)[None], u.appearance)
+        photo = ((img - target).pow(2) * mask).sum() / (3 * mask.sum())
+        terms = {"photo": photo}
+        if features:
+            terms["feat"] = sum((a - b).pow(2).mean() for a, b in zip(features(img), target_feats))
+        terms.update(renderer.appearance_prior(u.appearance))
+        uv = project_points(problem.camera, verts[problem.landmark_ids], Rt, u.translation())
+        terms["lmk"] = (uv - problem.landmarks).pow(2).sum(1).mean()
+        terms["alpha"] = u.alpha.pow(2).sum()
+        terms["beta"] = u.beta.pow(2).sum()
+        total = sum(weights[k] * v for k, v in terms.items())
+        return total, terms, img
+
+    return losses
