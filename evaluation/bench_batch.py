@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from morphable.logs import add_verbosity_arguments, configure, verbosity
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 PHOTOS = ("image_0010.png", "takeo.ppm", "einstein.jpg", "breakingbad.jpg")
 CONFIGS = (("local", 1), ("local", 2), ("dask", 1), ("dask", 2))
@@ -112,7 +114,9 @@ def main(argv=None) -> int:
     p.add_argument("--synthetic", type=int, default=40, help="synthetic landmark items (0: skip)")
     p.add_argument("--detect", type=int, default=8, help="photos with detection (0: skip)")
     p.add_argument("--report", help="JSON report")
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
+    configure(verbosity(args))
 
     from morphable import load_model
     from morphable.batch import read_manifest

@@ -57,6 +57,7 @@ from morphable.fitting.correspondences import (Correspondences, across_outline, 
                                                slide_contours)
 from morphable.io.atomic import atomic_path
 from morphable.landmarks import JAW
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SFM = DATA / "models" / "sfm"
@@ -513,7 +514,9 @@ def main(argv=None):
     p.add_argument("--load", nargs="+", type=int, default=[0], metavar="N",
                    help="load table: busy processes beside the benchmark (default 0)")
     p.add_argument("--load-n", type=int, default=100, help="faces of the load table")
+    add_verbosity_arguments(p)
     a = p.parse_args(argv)
+    configure(verbosity(a))
     if any(n < 0 for n in a.load):
         p.error("--load: the number of busy processes must be >= 0")
     a.report.parent.mkdir(parents=True, exist_ok=True)

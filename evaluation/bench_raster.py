@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from morphable.logs import add_verbosity_arguments, configure, verbosity
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -262,7 +264,9 @@ def main(argv=None):
     p.add_argument("--trimesh-numpy", action="store_true",
                    help="also time trimesh's numpy ray intersector (slow)")
     p.add_argument("--out", help="also write the markdown table here")
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
+    configure(verbosity(args))
     import os
 
     rows = bench(args.repeat, tuple(args.sizes), threads=args.threads,

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import InputError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves", "main"]
 
@@ -177,7 +178,9 @@ def main(argv=None) -> int:
     p.add_argument("--inverter", default="auto", help="inverter.pt (default: committed/runs)")
     p.add_argument("--landmark-noise", type=float, default=1.0, help="px")
     p.add_argument("--threads", type=int)
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
+    configure(verbosity(args))
     out = Path(args.report)
     if not out.resolve().parent.is_dir():
         raise InputError(f"{out}: folder {out.resolve().parent} does not exist")

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from morphable.errors import MorphableError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 from neural.auxnets import NAMES, load_aux
 from neural.checkpoint import GENERATOR_FILE, default_no_norm_cycle_path, load_generator
 
@@ -213,7 +214,9 @@ def main(argv=None) -> int:
                    help="checkpoints: evaluate the raw generator, not its moving average")
     p.add_argument("--faces", type=int, default=64)
     p.add_argument("--seed", type=int, default=12345)
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
+    configure(verbosity(args))
     gens = {"gar": load_generator(args.generator, not args.raw)}
     ablation = args.ablation
     if ablation == "auto":

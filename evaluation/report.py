@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from morphable.errors import FitError, InputError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .florence import evaluate, gar_refiner, reconstruct, video_landmarks
 from .scans import UNITS, load_scan
@@ -145,10 +146,9 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--video-frames", type=int, default=30)
     p.add_argument("--out", default="reports", help="output folder (created if missing)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar, warnings only")
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
-                        format="%(levelname)s: %(message)s")
+    configure(verbosity(args))
     for c in args.conditions:
         if c not in CONDITIONS:
             raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")

@@ -28,7 +28,8 @@ from __future__ import annotations
 import logging
 import sys
 
-__all__ = ["configure", "library_level", "import_open3d", "quiet_vtk", "OWN_LOGGERS"]
+__all__ = ["configure", "add_verbosity_arguments", "verbosity", "library_level",
+           "import_open3d", "quiet_vtk", "OWN_LOGGERS"]
 
 OWN_LOGGERS = ("morphable", "neural", "evaluation")
 """Logger name prefixes of this project: they speak at the default verbosity."""
@@ -70,6 +71,21 @@ def configure(verbosity: int = 0, stream=None) -> None:
         logging.getLogger(name).setLevel(own)
     # Python warnings (torch's, numpy's...) become records of the "py.warnings" logger
     logging.captureWarnings(True)
+
+
+def add_verbosity_arguments(parser) -> None:
+    """``-q/--quiet`` and ``-v/--verbose`` (repeatable) on an argparse parser: the options
+    every command of the project takes; :func:`verbosity` reads them back."""
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars, warnings only")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="also the libraries' messages (-v warnings, -vv everything)")
+
+
+def verbosity(args) -> int:
+    """The verbosity of parsed :func:`add_verbosity_arguments`: -1 quiet, else the count of
+    ``-v``."""
+    return -1 if args.quiet else args.verbose
 
 
 def library_level() -> int | None:

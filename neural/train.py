@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from morphable.errors import InputError, MorphableError
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .auxnets import NAMES, load_aux
 from .checkpoint import default_aux_path
@@ -317,13 +318,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_verbosity_arguments(p)
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    configure(verbosity(args))
     try:
         overrides = _parse_set(args.set)
         for key in ("steps", "batch_size", "seed"):

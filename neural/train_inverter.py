@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from morphable.errors import one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .gar import pixel_norm
 from .inverter import Inverter, inverter_loss, save_inverter
@@ -125,13 +126,14 @@ def build_parser():
     p.add_argument("--max-minutes", type=float)
     p.add_argument("--threads", type=int)
     p.add_argument("--seed", type=int, default=0)
+    add_verbosity_arguments(p)
     return p
 
 
 @one_line_errors("neural.train_inverter")
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    configure(verbosity(args))
     if args.threads:
         torch.set_num_threads(args.threads)
     from .renderer import GARRenderer

@@ -10,7 +10,7 @@ import importlib
 import sys
 
 from ..errors import MorphableError
-from ..logs import configure
+from ..logs import add_verbosity_arguments, configure, verbosity
 
 COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "plot", "edit"]
 """Module names under ``morphable.cli``; the order is the order of ``morphable --help``."""
@@ -18,9 +18,7 @@ COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="morphable", description="3D morphable face model toolkit")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars, warnings only")
-    parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="also the libraries' messages (-v warnings, -vv everything)")
+    add_verbosity_arguments(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
@@ -32,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    configure(-1 if args.quiet else args.verbose)
+    configure(verbosity(args))
     try:
         return args._run(args) or 0
     except MorphableError as e:

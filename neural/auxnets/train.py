@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from morphable.errors import MorphableError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from . import NAMES, build_aux, save_aux
 
@@ -151,9 +152,9 @@ def main(argv=None) -> int:
     p.add_argument("--save-every", type=int, default=200)
     p.add_argument("--nets", default="NPLR", help="which networks to train, e.g. R")
     p.add_argument("--threads", type=int)
-    p.add_argument("--quiet", action="store_true")
+    add_verbosity_arguments(p)
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    configure(verbosity(args))
     from tqdm import tqdm
 
     if args.threads:
