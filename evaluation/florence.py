@@ -112,7 +112,7 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
     noise estimated (a video's is unknown: detector, resolution, blur) unless set, and the
     detector's model error for frames whose landmarks were detected ((N,) bool ``detected``;
     :data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless set."""
-    from morphable.fitting.landmark_fit import frame_model_std
+    from morphable.fitting.noise import frame_model_std
 
     out = dict(effort)
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")

@@ -35,7 +35,7 @@ DEFINITION_GROUPS = {
     "mouth": np.arange(48, 68),
 }
 """Landmark groups by how well their annotation is defined (the size of the definition error,
-:data:`morphable.fitting.landmark_fit.DEFINITION_STD_MM`): the chin apart from the jaw, the
+:data:`morphable.fitting.noise.DEFINITION_STD_MM`): the chin apart from the jaw, the
 nose's ridge apart from its base, both sides together."""
 INNER = np.arange(17, 68)
 """The 51 inner points (iBUG 18-68), used when the jaw outline is unreliable."""

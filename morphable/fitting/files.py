@@ -130,7 +130,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     detector : "hog" or "cnn" (dlib)
 
     Frames whose landmarks are detected are fitted with ``model_std_mm``
-    :data:`~morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM` (a detector's errors are
+    :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
     face-shaped), the others with the fitter's default.
 
     Returns
@@ -138,7 +138,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
     """
     from . import fit_landmarks
-    from .landmark_fit import frame_model_std
+    from .noise import frame_model_std
 
     images = [Path(p) for p in images]
     if not images:
