@@ -317,8 +317,8 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
     along the subject's jaw line as the mean face expects them, moved by ``arc_offset`` mm."""
     if not np.isnan(landmarks[:17]).any():
         return
-    from morphable.fitting.correspondences import (interpolate_arc, jaw_arc_positions,
-                                                   landmark_bank)
+    from morphable.fitting.correspondences import interpolate_arc, landmark_bank
+    from morphable.fitting.synthetic import jaw_arc_positions
 
     bank = landmark_bank(model)
     for lms, chain in bank.polylines:
