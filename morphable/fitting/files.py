@@ -76,7 +76,7 @@ def read_landmark_file(path, size=None) -> np.ndarray:
     (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
     """
     from ..io.landmarks import read_ljson, read_pts
-    from ..landmarks import _MENPO, from_menpo_labels
+    from ..landmarks import MENPO_LABELS, from_menpo_labels
 
     path = Path(path)
     if not path.is_file():
@@ -85,7 +85,7 @@ def read_landmark_file(path, size=None) -> np.ndarray:
         pts, labels = read_ljson(path)
         if pts.shape[1] != 2:
             raise InputError(f"{path}: expected 2D landmarks, got {pts.shape[1]}D points")
-        if len(pts) == 68 and labels and set(labels) <= set(_MENPO):
+        if len(pts) == 68 and labels and set(labels) <= set(MENPO_LABELS):
             pts = from_menpo_labels(pts, labels, str(path))
     else:
         pts = read_pts(path)
