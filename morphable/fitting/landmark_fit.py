@@ -154,19 +154,21 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
     y, given, size = as_frames(landmarks, mask, image_size)
     # the model's landmark rows are prepared once per model and process: not part of a fit's time
     t_bank = time.perf_counter()
-    bank = landmark_bank(model, slide=contour == "slide")
+    bank = landmark_bank(model, slide=options.contour == "slide")
     t0 += time.perf_counter() - t_bank
     pb = Problem(model, bank, options, y, given, size)
     with np.errstate(all="ignore"):
         # with no jaw point to re-pick, later linear rounds would only alternate pose and
         # shape, which the nonlinear stage does jointly (same accuracy, a third less time)
-        rounds = n_linear if pb.sliding is not None or not n_iterations else min(n_linear, 1)
+        rounds = options.n_linear
+        if pb.sliding is None and options.n_iterations:
+            rounds = min(rounds, 1)
         st = linear_stage(pb, rounds)
-        st, iters = lm_stage(pb, st, n_iterations)
+        st, iters = lm_stage(pb, st, options.n_iterations)
         for _ in range(AUTO_ROUNDS if options.auto_std else 0):
             slide(pb, st)
             pb.landmark_std_px = estimate_landmark_std(pb, st)
-            st, more = lm_stage(pb, st, n_iterations)
+            st, more = lm_stage(pb, st, options.n_iterations)
             iters += more
         slide(pb, st)
         _, _, _, _, depth, r = residuals(pb, st, False)
