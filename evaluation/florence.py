@@ -111,8 +111,8 @@ def _video_fit_options(effort: dict, focal_px, detected=None) -> dict:
     length when it is known (unless ``effort["camera"]`` says otherwise), the landmark
     noise estimated (a video's is unknown: detector, resolution, blur) unless set, and the
     detector's model error for frames whose landmarks were detected ((N,) bool ``detected``;
-    :data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless set."""
-    from morphable.fitting.landmark_fit import frame_model_std
+    :data:`morphable.fitting.noise.DETECTED_MODEL_STD_MM`) unless set."""
+    from morphable.fitting.noise import frame_model_std
 
     out = dict(effort)
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")
@@ -168,7 +168,7 @@ def reconstruct(method: str, model, landmarks, image_size, effort: dict | None =
         without images; their time is reported in ``info``, not per frame
     detected : (N,) bool or None, the frames whose landmarks a detector found: ours and
         ours-independent fit them with the detector's model error
-        (:data:`morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM`) unless ``effort`` sets
+        (:data:`morphable.fitting.noise.DETECTED_MODEL_STD_MM`) unless ``effort`` sets
         ``model_std_mm``
 
     Returns
@@ -655,7 +655,7 @@ def _parser():
                    help="ours: per-frame model landmark error, mm (default: the fitter's)")
     p.add_argument("--expression-weight", type=float,
                    help="ours: weight of the expression prior (default 1: the fitter's, "
-                        "morphable.fitting.landmark_fit.expression_precision)")
+                        "morphable.fitting.noise.expression_precision)")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")

@@ -136,7 +136,7 @@ def fit_landmarks_3d(model, scan, iterations: int = 10, prior_weight: float = 1.
     Parameters
     ----------
     definition_std_mm : (68,) mm per coordinate, default the landmark fit's
-        :data:`~morphable.fitting.landmark_fit.DEFINITION_STD_MM`
+        :data:`~morphable.fitting.noise.DEFINITION_STD_MM`
 
     Examples
     --------
@@ -145,7 +145,7 @@ def fit_landmarks_3d(model, scan, iterations: int = 10, prior_weight: float = 1.
     from scipy.optimize import lsq_linear
 
     from morphable.fitting.correspondences import landmark_bank
-    from morphable.fitting.landmark_fit import DEFINITION_STD_MM, expression_precision
+    from morphable.fitting.noise import DEFINITION_STD_MM, expression_precision
     from morphable.metrics import align_landmarks
 
     sd = DEFINITION_STD_MM if definition_std_mm is None else np.asarray(definition_std_mm, float)

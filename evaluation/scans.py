@@ -221,7 +221,7 @@ def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float
     model : MorphableModel whose landmarks are defined (all but at most 4; SFM lacks the inner
         mouth corners): by ``landmark_ids``, or for the jaw by its contour (SFM: jaw points
         spaced along the jaw line from the height of the outer eye corners to the chin,
-        :func:`morphable.fitting.correspondences.expected_jaw_points`)
+        :func:`morphable.fitting.synthetic.expected_jaw_points`)
     rng : numpy Generator or int seed
     identity_std : standard deviation of the identity coefficients (1 = the model's spread)
     expression_std : blendshape weights ``|N(0, expression_std)|`` (clipped to 1), or PCA
@@ -317,8 +317,8 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
     along the subject's jaw line as the mean face expects them, moved by ``arc_offset`` mm."""
     if not np.isnan(landmarks[:17]).any():
         return
-    from morphable.fitting.correspondences import (interpolate_arc, jaw_arc_positions,
-                                                   landmark_bank)
+    from morphable.fitting.correspondences import interpolate_arc, landmark_bank
+    from morphable.fitting.synthetic import jaw_arc_positions
 
     bank = landmark_bank(model)
     for lms, chain in bank.polylines:

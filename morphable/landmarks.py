@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["N_LANDMARKS", "GROUPS", "DEFINITION_GROUPS", "INNER", "JAW", "MIRROR",
+__all__ = ["N_LANDMARKS", "GROUPS", "DEFINITION_GROUPS", "INNER", "JAW", "MIRROR", "MENPO_LABELS",
            "from_menpo_labels", "as_landmarks"]
 
 N_LANDMARKS = 68
@@ -35,13 +35,12 @@ DEFINITION_GROUPS = {
     "mouth": np.arange(48, 68),
 }
 """Landmark groups by how well their annotation is defined (the size of the definition error,
-:data:`morphable.fitting.landmark_fit.DEFINITION_STD_MM`): the chin apart from the jaw, the
+:data:`morphable.fitting.noise.DEFINITION_STD_MM`): the chin apart from the jaw, the
 nose's ridge apart from its base, both sides together."""
 INNER = np.arange(17, 68)
 """The 51 inner points (iBUG 18-68), used when the jaw outline is unreliable."""
 
-# menpo's ibug-68 labels name sides as seen in the image (menpo "leye" is the subject's right)
-_MENPO = {
+MENPO_LABELS = {
     "chin": "jaw", "jaw": "jaw",
     "leyebrow": "right_eyebrow", "left_eyebrow": "right_eyebrow",
     "reyebrow": "left_eyebrow", "right_eyebrow": "left_eyebrow",
@@ -50,6 +49,8 @@ _MENPO = {
     "reye": "left_eye", "right_eye": "left_eye",
     "mouth": "mouth",
 }
+"""menpo's iBUG-68 label -> the iBUG group (:data:`GROUPS`) it names. menpo names sides as
+seen in the image: its ``leye`` is the subject's right eye."""
 
 
 def _mirror() -> np.ndarray:
@@ -84,7 +85,7 @@ def from_menpo_labels(points, labels: dict, source: str = "landmarks") -> np.nda
     out = np.full((N_LANDMARKS, points.shape[1]), np.nan)
     seen = set()
     for name, idx in labels.items():
-        group = _MENPO.get(name)
+        group = MENPO_LABELS.get(name)
         if group is None:
             raise InputError(f"{source}: unknown landmark label {name!r}")
         target = GROUPS[group]

@@ -9,16 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .arrays import is_torch
 from .errors import InputError
 
 __all__ = ["vertex_normals", "face_normals"]
 
 _EPS = 1e-30
 _FALLBACK = (0.0, 0.0, 1.0)
-
-
-def _is_torch(x) -> bool:
-    return type(x).__module__.split(".")[0] == "torch"
 
 
 def _check(vertices, triangles):
@@ -121,7 +118,7 @@ class _Torch:
 
 
 def _namespace(x):
-    return _Torch() if _is_torch(x) else _Numpy()
+    return _Torch() if is_torch(x) else _Numpy()
 
 
 def vertex_normals(vertices, triangles, weighting: str = "area"):
@@ -153,7 +150,7 @@ def vertex_normals(vertices, triangles, weighting: str = "area"):
     if weighting not in ("area", "angle"):
         raise InputError(f"weighting must be 'area' or 'angle', got {weighting!r}")
     xp = _namespace(vertices)
-    if not _is_torch(vertices):
+    if not is_torch(vertices):
         vertices = np.asarray(vertices)
         if vertices.dtype.kind != "f":
             vertices = vertices.astype(np.float64)
@@ -173,7 +170,7 @@ def vertex_normals(vertices, triangles, weighting: str = "area"):
             a = corners[(i + 1) % 3] - corners[i]
             b = corners[(i + 2) % 3] - corners[i]
             contrib.append(unit * xp.angle(a, b)[..., None])
-    if _is_torch(vertices):
+    if is_torch(vertices):
         values = xp.torch.cat(contrib, dim=-2)
         index = triangles.T.reshape(-1)
     else:

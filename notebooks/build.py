@@ -70,7 +70,7 @@ assert np.median(gap) < 15'''),
         new_code_cell('''\
 from morphable import load_model
 from morphable.fitting import fit_landmarks
-from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
+from morphable.fitting.noise import DETECTED_MODEL_STD_MM
 
 model = load_model("sfm")
 H, W = photo.shape[:2]

@@ -62,7 +62,7 @@ def test_cli_fit_detects_when_no_landmarks_given(takeo, tmp_path):
     rep = json.loads(report.read_text())
     assert "dlib hog" in str(rep["landmarks"]) and rep["frames"][0]["landmark_rmse_px"] < 10
     # detected landmarks are fitted with the detector's error, annotated ones with the default
-    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
     assert rep["frames"][0]["model_std_mm"] == DETECTED_MODEL_STD_MM
     assert main(["fit", str(takeo), "--landmarks", str(takeo.with_suffix(".pts")),

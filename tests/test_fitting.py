@@ -234,23 +234,25 @@ def test_shared_offsets_do_not_shrink_the_face(sfm, kind):
 
 def test_shared_rows_are_the_derivatives_of_the_points(sfm, face):
     # the offsets scale with the face: the identity's derivatives gain the offsets' growth
-    from morphable.fitting import landmark_fit as lf
-    from morphable.landmarks import as_landmarks
+    from morphable.fitting.correspondences import landmark_bank
+    from morphable.fitting.linear_stage import linear_stage
+    from morphable.fitting.options import FitOptions
+    from morphable.fitting.problem import Problem, as_frames
+    from morphable.fitting.rows import points, shared_rows
 
-    y, given = as_landmarks(np.stack([synth(sfm, yaw=a, identity=face[0])[0] for a in (-20, 25)]))
-    bank = lf.landmark_bank(sfm)
-    pb = lf._Problem(bank, y, given & bank.usable, np.full((2, 2), 255.5),
-                     np.full(2, 512.0), False, sfm.n_identity, sfm.n_expression, True, True,
-                     1.0, 1.0, 1.0, 1.5, None, 1.345, 2.0)
-    st = lf._linear_stage(pb, 1)
+    y, given, size = as_frames(np.stack([synth(sfm, yaw=a, identity=face[0])[0] for a in (-20, 25)]),
+                               None, (512, 512))
+    pb = Problem(sfm, landmark_bank(sfm), FitOptions(definition_std_mm=2.0), y, given, size)
+    assert pb.D > 0                                                 # the offsets are fitted
+    st = linear_stage(pb, 1)
     st.alpha = st.alpha + np.random.default_rng(0).normal(0.0, 0.5, st.alpha.shape)
-    rows = lf._shared_rows(pb, st)                                  # (N, 3, 68, K)
+    rows = shared_rows(pb, st)                                      # (N, 3, 68, K)
     eps = 1e-6
     for k in (0, 1, sfm.n_identity, pb.K - 1):
         up, down = st.copy(), st.copy()
         up.alpha[:, k] += eps
         down.alpha[:, k] -= eps
-        d = (lf._points(pb, up) - lf._points(pb, down)) / (2 * eps)  # (N, 68, 3)
+        d = (points(pb, up) - points(pb, down)) / (2 * eps)         # (N, 68, 3)
         np.testing.assert_allclose(rows[..., k].transpose(0, 2, 1), d, atol=1e-6)
 
 
@@ -267,7 +269,7 @@ def test_definition_error_of_one_frame_is_extra_variance(sfm, face):
 def test_model_std_per_frame(sfm, face):
     # one value per frame: the same fit as the number when they agree; a detector's larger
     # error (DETECTED_MODEL_STD_MM) leaves the identity nearer the mean
-    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
 
     rng = np.random.default_rng(2)
     lm = np.stack([synth(sfm, yaw=y, identity=face[0])[0] for y in (-20, 5, 25)])
@@ -358,7 +360,7 @@ def test_ict_model(ict):
 def test_expression_prior_scales_with_the_number_of_blendshapes(ict, sfm):
     """53 blendshapes share an expression the SFM splits into 6: each weight gets 53 / 6 of
     the prior. A neutral ICT face then keeps its shape in the identity, not in blendshapes."""
-    from morphable.fitting.landmark_fit import expression_precision
+    from morphable.fitting.noise import expression_precision
 
     assert expression_precision(sfm) == 1.0
     assert expression_precision(ict) == pytest.approx(53 / 6)
@@ -528,7 +530,7 @@ def _size(path):
 
 @pytest.mark.parametrize("model_name", ["sfm", "ict"])
 def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name):
-    import morphable.fitting.landmark_fit as lf
+    import morphable.fitting.problem as problem
 
     model = request.getfixturevalue(model_name)
     rng = np.random.default_rng(5)
@@ -537,7 +539,7 @@ def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name
     missing[1, 40] = np.nan          # a missing fixed landmark: that batch takes the plain path
     cases = [(x, s) for x in (lms, missing) for s in (True, False)]
     fast = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
-    monkeypatch.setattr(lf, "_fixed_gram", lambda bank, K, jaw: None)
+    monkeypatch.setattr(problem, "fixed_gram", lambda bank, K, jaw: None)
     plain = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
     for f, p in zip(fast, plain):
         np.testing.assert_allclose(f.frame_identity, p.frame_identity, atol=1e-8)
@@ -547,7 +549,7 @@ def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name
 def test_fit_without_jaw_points_never_computes_the_outline(sfm, monkeypatch):
     """51-point annotations (the jaw missing) have nothing to slide: the outline is never
     built, and the fit still recovers the pose."""
-    from morphable.fitting import landmark_fit
+    from morphable.fitting import sliding
 
     cam = Camera.looking_at_face(image_size=(512, 512), yaw=30, pitch=-10)
     full = simulate_landmarks(sfm, cam)
@@ -557,9 +559,28 @@ def test_fit_without_jaw_points_never_computes_the_outline(sfm, monkeypatch):
     def no_outline(*args, **kwargs):
         raise AssertionError("outline computed without jaw points")
 
-    monkeypatch.setattr(landmark_fit, "outline_points", no_outline)
-    res = landmark_fit.fit_landmarks(sfm, lms, (512, 512))
+    monkeypatch.setattr(sliding, "outline_points", no_outline)
+    res = fit_landmarks(sfm, lms, (512, 512))
     assert res.landmark_rmse_px[0] < 0.5
     assert abs(res.euler_deg[0, 0] - 30) < 1.0
     with pytest.raises(AssertionError, match="outline computed"):
-        landmark_fit.fit_landmarks(sfm, full, (512, 512))
+        fit_landmarks(sfm, full, (512, 512))
+
+
+def test_fit_options_carry_the_defaults_of_fit_landmarks():
+    # fit_landmarks' keyword arguments build FitOptions: one set of settings, the same defaults
+    import dataclasses
+    import inspect
+
+    from morphable.fitting.options import FitOptions
+
+    params = inspect.signature(fit_landmarks).parameters
+    fields = {f.name: f for f in dataclasses.fields(FitOptions)}
+    assert set(fields) == {n for n, p in params.items() if p.kind is p.KEYWORD_ONLY} - {"mask"}
+    for name, f in fields.items():
+        default = f.default_factory() if f.default is dataclasses.MISSING else f.default
+        assert np.array_equal(default, params[name].default), name
+    with pytest.raises(InputError, match="focal_px"):
+        FitOptions(focal_px=[500.0, -1.0])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        FitOptions().camera = "perspective"

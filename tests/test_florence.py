@@ -289,7 +289,7 @@ def test_detected_frames_get_the_detectors_error(james, sfm):
     # frames whose landmarks a detector found are fitted with DETECTED_MODEL_STD_MM, unless
     # the settings give model_std_mm; ours and ours-independent alike
     from morphable.fitting import fit_landmarks
-    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM, MODEL_STD_MM
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
     from evaluation.florence import reconstruct, video_landmarks
 

@@ -204,7 +204,7 @@ def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):
     detected ones (a detector's model error) far less, on either camera."""
     import dataclasses
 
-    from morphable.fitting.landmark_fit import DETECTED_MODEL_STD_MM
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
     from morphable.refinement import landmark_trust
 
     _, fit, _ = synthetic

@@ -3,10 +3,18 @@
 Modules, each usable alone:
 
 - :mod:`.landmark_fit` — :func:`fit_landmarks`, the whole fit (one or many frames, shared or
-  per-frame identity, affine or pinhole camera) returning a :class:`FitResult`;
+  per-frame identity, affine or pinhole camera) returning a :class:`FitResult`, as named steps:
+  - :mod:`.options` — its settings, validated (:class:`~.options.FitOptions`);
+  - :mod:`.noise` — the noise and definition-error model, its defaults and the data weights;
+  - :mod:`.problem` — a fit's fixed data and its state; :mod:`.rows` — the model rows of the
+    correspondences, the points and residuals they give; :mod:`.sliding` — the jaw
+    correspondences re-picked on the current outline;
+  - :mod:`.linear_stage`, :mod:`.nonlinear` — the closed-form start and the joint
+    Levenberg-Marquardt; :mod:`.noise_estimation` — ``landmark_std_px="auto"``;
+  - :mod:`.result` — :class:`FitResult` and its assembly;
 - :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
 - :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;
-- :mod:`.correspondences` — landmark rows of a model, jaw sliding and silhouette marching;
+- :mod:`.correspondences` — landmark rows of a model, jaw sliding and the outline's silhouette;
 - :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
 - :mod:`.detect` — dlib face and 68-point detection.
 

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours", "march_lines",
-           "march_silhouette", "outline_lines", "outline_points", "expected_jaw_points",
-           "jaw_arc_positions", "interpolate_arc", "across_outline", "OUTLINE_STEP_MM"]
+__all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours",
+           "march_silhouette", "outline_lines", "outline_points", "chain_arc", "arc_lengths",
+           "interpolate_arc", "horizontal_lines", "across_outline", "OUTLINE_STEP_MM"]
 
 _RIGHT_JAW = np.arange(0, 8)
 _LEFT_JAW = np.arange(9, 17)
@@ -96,12 +96,12 @@ def _polylines(model, slide: bool) -> list:
     return out
 
 
-def _chain_arc(model, chain_ids):
+def chain_arc(model, chain_ids):
     """Mean-shape chain points (C, 3), their cumulative arc lengths (C,) and the arc position
     where the chain passes the height of the outer eye corners (0 if it starts lower), mm."""
     mean = np.asarray(model.mean, dtype=np.float64)
     P = mean[chain_ids]
-    arc = _arc_lengths(P)
+    arc = arc_lengths(P)
     start = 0.0
     corners = np.asarray(model.landmark_ids)[[36, 45]]
     if (corners >= 0).all():
@@ -114,7 +114,8 @@ def _chain_arc(model, chain_ids):
     return P, arc, start
 
 
-def _arc_lengths(P):
+def arc_lengths(P):
+    """(C,) cumulative arc lengths of a polyline ``P`` (C, 3), from 0, mm."""
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
 
 
@@ -124,31 +125,8 @@ def interpolate_arc(P, arc, at):
     return np.stack([np.interp(at, arc, P[:, k]) for k in range(3)], -1)
 
 
-def jaw_arc_positions(model, lms, chain_ids, vertices):
-    """A face's jaw line and where its sliding landmarks sit on it: the chain's points (C, 3)
-    in ``vertices``, their cumulative arc lengths (C,) and the landmarks' arc positions (J,),
-    mm — :func:`expected_jaw_points` rescaled to this face's jaw line."""
-    _, at, mean_arc = expected_jaw_points(model, lms, chain_ids)
-    P = np.asarray(vertices, dtype=np.float64)[chain_ids]
-    arc = _arc_lengths(P)
-    return P, arc, at / mean_arc[-1] * arc[-1]
-
-
-def expected_jaw_points(model, lms, chain_ids):
-    """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
-    (J,) and the chain's cumulative arc lengths (C,), mm.
-
-    iBUG jaw point 1 (17) sits at the height of the outer eye corner: the landmarks are
-    evenly spaced by arc length from where the chain passes that height (its top if lower)
-    down to the chin (8)."""
-    P, arc, start = _chain_arc(model, chain_ids)
-    frac = (lms if lms[0] < 8 else 16 - lms) / 8.0
-    at = start + frac * (arc[-1] - start)
-    return interpolate_arc(P, arc, at), at, arc
-
-
-def _horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
-                      step_mm: float = 3.0) -> list:
+def horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
+                     step_mm: float = 3.0) -> list:
     """Per point of the jaw line, the vertex ids of a horizontal line at its height on the
     mean shape, from the jaw line inwards to the midline: the chain vertex nearest to the
     point, then one vertex per ``step_mm`` of x nearer the midline (the closest in height,
@@ -174,20 +152,13 @@ def _horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
     return out
 
 
-def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
-    """Per sliding landmark, its horizontal line of vertices (jaw line inwards) at the height
-    where the landmark is expected on the mean shape (:func:`expected_jaw_points`)."""
-    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
-    return _horizontal_lines(model, pts, chain_ids, height_mm, step_mm)
-
-
 def outline_lines(model, chain_ids, step_mm: float = OUTLINE_STEP_MM) -> np.ndarray:
     """(L, M) vertex ids, -1 padded: horizontal lines every ``step_mm`` of arc along the jaw
     line, from 10 mm above the outer eye corners' height down to the chin (the last line is
     the chin vertex alone)."""
-    P, arc, start = _chain_arc(model, chain_ids)
+    P, arc, start = chain_arc(model, chain_ids)
     at = np.arange(max(start - 10.0, 0.0), arc[-1] - 0.5 * step_mm, step_mm)
-    lines = _horizontal_lines(model, interpolate_arc(P, arc, at), chain_ids) + [chain_ids[-1:]]
+    lines = horizontal_lines(model, interpolate_arc(P, arc, at), chain_ids) + [chain_ids[-1:]]
     out = np.full((len(lines), max(len(v) for v in lines)), -1, dtype=np.int64)
     for i, v in enumerate(lines):
         out[i, :len(v)] = v

@@ -76,7 +76,7 @@ def read_landmark_file(path, size=None) -> np.ndarray:
     (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
     """
     from ..io.landmarks import read_ljson, read_pts
-    from ..landmarks import _MENPO, from_menpo_labels
+    from ..landmarks import MENPO_LABELS, from_menpo_labels
 
     path = Path(path)
     if not path.is_file():
@@ -85,7 +85,7 @@ def read_landmark_file(path, size=None) -> np.ndarray:
         pts, labels = read_ljson(path)
         if pts.shape[1] != 2:
             raise InputError(f"{path}: expected 2D landmarks, got {pts.shape[1]}D points")
-        if len(pts) == 68 and labels and set(labels) <= set(_MENPO):
+        if len(pts) == 68 and labels and set(labels) <= set(MENPO_LABELS):
             pts = from_menpo_labels(pts, labels, str(path))
     else:
         pts = read_pts(path)
@@ -130,7 +130,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     detector : "hog" or "cnn" (dlib)
 
     Frames whose landmarks are detected are fitted with ``model_std_mm``
-    :data:`~morphable.fitting.landmark_fit.DETECTED_MODEL_STD_MM` (a detector's errors are
+    :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
     face-shaped), the others with the fitter's default.
 
     Returns
@@ -138,7 +138,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
     """
     from . import fit_landmarks
-    from .landmark_fit import frame_model_std
+    from .noise import frame_model_std
 
     images = [Path(p) for p in images]
     if not images:

@@ -5,7 +5,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FitResult"]
+from ..camera import Camera
+from ..errors import FitError
+
+__all__ = ["FitResult", "fit_result", "AFFINE_DISTANCE_MM"]
+
+AFFINE_DISTANCE_MM = 600.0
+"""Camera distance reported for affine fits (the projection does not depend on it)."""
 
 
 @dataclass(eq=False)
@@ -103,3 +109,41 @@ class FitResult:
                 "shared_identity": bool(self.shared_identity), "frames": frames,
                 "identity": [float(x) for x in self.identity],
                 "iterations": int(self.iterations), "runtime_ms": float(self.runtime_ms)}
+
+
+def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
+    """The :class:`FitResult` of a finished fit: its :class:`~morphable.fitting.problem.Problem`
+    ``pb`` and final :class:`~morphable.fitting.problem.State` ``st``, the nonlinear
+    iterations run, and the final residuals ``r`` (N, 68, 2) px and depths (N, 68) mm
+    (:func:`~morphable.fitting.rows.residuals`). FitError for a non-finite fit, or a pinhole
+    fit with landmarks behind the camera."""
+    used = pb.mask & st.corr.defined
+    d2 = (r ** 2).sum(-1)
+    rmse = np.sqrt(np.where(used, d2, 0.0).sum(1) / np.maximum(used.sum(1), 1))
+    finite = all(np.all(np.isfinite(a)) for a in (st.R, st.t, st.k, st.alpha, st.beta, rmse))
+    if not finite:
+        raise FitError("the fit did not converge to finite values (degenerate landmarks?)")
+    if pb.perspective and np.any(used & ~(depth > 0)):
+        raise FitError("the perspective fit put landmarks behind the camera")
+    cams = []
+    for i in range(pb.N):
+        W_, H_ = (int(round(v)) for v in pb.size[i])
+        t = st.t[i].copy()
+        if not pb.perspective:
+            t[2] = -AFFINE_DISTANCE_MM
+        cams.append(Camera(kind=pb.options.camera, rotation=st.R[i], translation=t,
+                           scale=float(st.k[i]) if not pb.perspective else 1.0,
+                           focal=float(st.k[i]) if pb.perspective else 1.0,
+                           image_size=(W_, H_), principal=pb.principal[i]))
+    K, y = pb.n_identity, pb.y_obs
+    frame_alpha = np.broadcast_to(st.alpha[:, :K], (pb.N, K)).copy()
+    # jaw points: the foot of the landmark on the fitted outline (the target moved along it)
+    fitted = np.where(used[..., None], y + r, np.nan)
+    return FitResult(model=pb.model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
+                     expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,
+                     landmarks=np.where(pb.given[..., None], y, np.nan), fitted_landmarks=fitted,
+                     landmark_vertices=np.where(used, st.corr.vertex_ids(pb.bank), -1),
+                     shared_identity=bool(pb.shared), iterations=iterations,
+                     cost=(np.where(used, d2, 0.0)).sum(1), dtype=pb.options.dtype,
+                     landmark_std_px=np.broadcast_to(pb.landmark_std_px, (pb.N,)).astype(np.float64),
+                     model_std_mm=pb.model_std_mm.astype(np.float64))

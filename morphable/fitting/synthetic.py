@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .correspondences import (interpolate_arc, jaw_arc_positions, landmark_bank, march_lines,
-                              march_silhouette)
+from .correspondences import (arc_lengths, chain_arc, horizontal_lines, interpolate_arc,
+                              landmark_bank, march_silhouette)
 
-__all__ = ["simulate_landmarks"]
+__all__ = ["simulate_landmarks", "jaw_arc_positions", "expected_jaw_points", "march_lines"]
 
 
 def simulate_landmarks(model, camera, identity=None, expression=None, vertices=None) -> np.ndarray:
@@ -62,3 +62,33 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
                 p = (1 - w) * verts[i0] + w * verts[i1]
             lms[j] = camera.project(p[None])[0]
     return lms
+
+
+def jaw_arc_positions(model, lms, chain_ids, vertices):
+    """A face's jaw line and where its sliding landmarks sit on it: the chain's points (C, 3)
+    in ``vertices``, their cumulative arc lengths (C,) and the landmarks' arc positions (J,),
+    mm — :func:`expected_jaw_points` rescaled to this face's jaw line."""
+    _, at, mean_arc = expected_jaw_points(model, lms, chain_ids)
+    P = np.asarray(vertices, dtype=np.float64)[chain_ids]
+    arc = arc_lengths(P)
+    return P, arc, at / mean_arc[-1] * arc[-1]
+
+
+def expected_jaw_points(model, lms, chain_ids):
+    """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
+    (J,) and the chain's cumulative arc lengths (C,), mm.
+
+    iBUG jaw point 1 (17) sits at the height of the outer eye corner: the landmarks are
+    evenly spaced by arc length from where the chain passes that height (its top if lower)
+    down to the chin (8)."""
+    P, arc, start = chain_arc(model, chain_ids)
+    frac = (lms if lms[0] < 8 else 16 - lms) / 8.0
+    at = start + frac * (arc[-1] - start)
+    return interpolate_arc(P, arc, at), at, arc
+
+
+def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
+    """Per sliding landmark, its horizontal line of vertices (jaw line inwards) at the height
+    where the landmark is expected on the mean shape (:func:`expected_jaw_points`)."""
+    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
+    return horizontal_lines(model, pts, chain_ids, height_mm, step_mm)

@@ -13,14 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..arrays import is_torch
 from ..errors import InputError
-from .visibility import Visibility, _key
+from .visibility import Visibility, array_key
 
 __all__ = ["interpolate"]
-
-
-def _is_torch(x) -> bool:
-    return type(x).__module__.split(".")[0] == "torch"
 
 
 def _interpolate_numpy(vis: Visibility, attributes, triangles, foreground):
@@ -37,12 +34,13 @@ def _interpolate_numpy(vis: Visibility, attributes, triangles, foreground):
 
 
 def _torch_matrices(vis: Visibility, n_rows, triangles, dtype, device, foreground=False):
-    import torch
+    key = ("torch", n_rows, None if triangles is None else array_key(np.asarray(triangles)),
+           str(dtype), str(device), foreground)
 
-    key = ("torch", n_rows, None if triangles is None else _key(np.asarray(triangles)), str(dtype),
-           str(device), foreground)
-    if key not in vis._extra:
+    def make():
         import warnings
+
+        import torch
 
         m = vis.matrix(n_rows, triangles, np.float64, foreground)
         with warnings.catch_warnings():  # sparse CSR support is flagged beta in torch
@@ -53,8 +51,9 @@ def _torch_matrices(vis: Visibility, n_rows, triangles, dtype, device, foregroun
                     torch.as_tensor(s.indptr, dtype=torch.int64),
                     torch.as_tensor(s.indices, dtype=torch.int64),
                     torch.as_tensor(s.data, dtype=dtype), size=s.shape, device=device))
-        vis._extra[key] = tuple(pair)
-    return vis._extra[key]
+        return tuple(pair)
+
+    return vis.cached(key, make)
 
 
 def _sparse_apply():
@@ -124,7 +123,7 @@ def interpolate(vis, attributes, triangles=None, foreground: bool = False):
     array([0.125, 0.375, 0.625, 0.875])
     """
     if isinstance(vis, (list, tuple)):
-        if not _is_torch(attributes) or attributes.ndim != 3 or attributes.shape[0] != len(vis):
+        if not is_torch(attributes) or attributes.ndim != 3 or attributes.shape[0] != len(vis):
             raise InputError("a list of visibilities needs a torch (B, V, C) tensor with B = "
                              "len(list)")
         if foreground:
@@ -135,6 +134,6 @@ def interpolate(vis, attributes, triangles=None, foreground: bool = False):
                             for v, a in zip(vis, attributes)])
     if not isinstance(vis, Visibility):
         raise InputError(f"vis must be a Visibility, got {type(vis).__name__}")
-    if _is_torch(attributes):
+    if is_torch(attributes):
         return _interpolate_torch(vis, attributes, triangles, foreground)
     return _interpolate_numpy(vis, attributes, triangles, foreground)

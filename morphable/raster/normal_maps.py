@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..arrays import is_torch
 from ..errors import InputError
 from ..normals import vertex_normals
-from .interpolate import _is_torch, interpolate
-from .visibility import Visibility, _mesh, check_mesh, uv_visibility, visibility
+from .interpolate import interpolate
+from .visibility import Visibility, cached_mesh, check_mesh, uv_visibility, visibility
 
 __all__ = ["normal_map", "uv_normal_map", "uv_layout", "tangent_frames"]
 
@@ -20,7 +21,7 @@ _TINY = 1e-24
 
 def _normalize(n, mask):
     """Unit vectors where ``mask``, zero elsewhere (numpy or torch, never NaN)."""
-    if _is_torch(n):
+    if is_torch(n):
         import torch
 
         m = torch.as_tensor(mask, device=n.device)
@@ -45,7 +46,7 @@ def _resolve(vis, n):
 
 def _rotate(n, R):
     """n (..., 3) @ R^T with R (3, 3) or, for a batch, (B, 3, 3) against n (B, ..., 3)."""
-    if _is_torch(n):
+    if is_torch(n):
         import torch
 
         R = torch.as_tensor(R, dtype=n.dtype, device=n.device)
@@ -97,7 +98,7 @@ def normal_map(vertices, triangles, camera=None, frame: str = "camera", vis=None
     """
     if frame not in ("camera", "world"):
         raise InputError(f"frame must be 'camera' or 'world', got {frame!r}")
-    torch_in = _is_torch(vertices)
+    torch_in = is_torch(vertices)
     if vis is None:
         if torch_in and vertices.ndim == 3 and vertices.shape[0] != 1:
             raise InputError("a torch batch needs a list of visibilities (vis=[...])")
@@ -127,7 +128,7 @@ def _foreground_normal_map(vertices, triangles, vis, frame, weighting):
     """The numpy normal map of a visibility without supersampling: interpolation and
     normalisation run on the foreground samples only. The vertex normals of a mesh that
     :func:`visibility` has just seen come from its cache."""
-    mesh = _mesh(vertices, triangles, add=False)
+    mesh = cached_mesh(vertices, triangles, add=False)
     if mesh is None:
         n = vertex_normals(vertices, triangles, weighting=weighting)
     else:
@@ -154,9 +155,9 @@ def _interpolated_normals(vertices, triangles, vis, frame, rotation, weighting, 
         # rotation and interpolation are linear: rotating the V vertex normals is cheaper
         # than rotating every sample
         R = camera_rotation(vis, rotation)
-        if _is_torch(n) and getattr(R, "ndim", 2) == 3 and n.ndim == 2:
+        if is_torch(n) and getattr(R, "ndim", 2) == 3 and n.ndim == 2:
             n = n.expand(R.shape[0], *n.shape)
-        elif not _is_torch(n) and np.ndim(R) == 3 and n.ndim == 2:
+        elif not is_torch(n) and np.ndim(R) == 3 and n.ndim == 2:
             n = np.broadcast_to(n, (len(R),) + n.shape)
         n = _rotate(n, R)
     return interpolate(vis, n, foreground=foreground)
@@ -315,7 +316,7 @@ def uv_normal_map(model_or_mesh, vertices=None, size: int = 256, tangent: bool =
         vertices = ref
     triangles, triangle_uv = _select_faces(model_or_mesh, triangles, triangle_uv, faces)
     table = uv_visibility(triangles, uv, triangle_uv, size)
-    torch_in = _is_torch(vertices)
+    torch_in = is_torch(vertices)
     if torch_in:
         import torch
 

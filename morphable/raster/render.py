@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..arrays import is_torch
 from ..errors import InputError
-from .interpolate import _is_torch, interpolate
+from .interpolate import interpolate
 from .normal_maps import sample_normals
 from .shading import DirectionalLight, shade_directional, shade_sh
 from .texture import as_texture, sample_texture
@@ -25,7 +26,7 @@ _GREY = (0.75, 0.75, 0.75)
 def _is_sh(light) -> bool:
     if light is None or isinstance(light, DirectionalLight):
         return False
-    if _is_torch(light):
+    if is_torch(light):
         return True
     if isinstance(light, (list, tuple)) and light and isinstance(light[0], DirectionalLight):
         return False
@@ -120,7 +121,7 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
     >>> img[16, 16], img[0, 0]
     (array([1. , 0.5, 0.5]), array([0., 0., 0.]))
     """
-    torch_in = _is_torch(vertices)
+    torch_in = is_torch(vertices)
     if vis is None:
         if camera is None:
             raise InputError("render needs a camera or a visibility")
@@ -161,13 +162,13 @@ def render(vertices, triangles, camera=None, colors=None, texture=None, light=No
         if not np.isfinite(uv).all():
             raise InputError("texture uv contain NaN or inf")
         uv_samples = interpolate(vis, uv, tuv, foreground=True)
-        if _is_torch(image):  # a differentiable texture (torch (h, w, 3) in [0, 1])
+        if is_torch(image):  # a differentiable texture (torch (h, w, 3) in [0, 1])
             albedo = sample_texture(image, as_xp(uv_samples))
         else:
             albedo = as_xp(sample_texture(as_texture(image), uv_samples))
     elif colors is None:
         albedo = as_xp(_GREY)
-    elif _is_torch(colors):
+    elif is_torch(colors):
         albedo = interpolate(vis, colors, foreground=True) if colors.ndim == 2 else colors
     else:
         c = np.asarray(colors)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arrays import is_torch
 from ..errors import InputError
-from .interpolate import _is_torch
 
 __all__ = ["DirectionalLight", "sh_basis", "shade_sh", "shade_sh_torch", "shade_directional",
            "sh_from_lights"]
@@ -74,7 +74,7 @@ def sh_basis(normals):
     """(..., 3) unit normals -> (..., 9) Lambertian SH irradiance basis (``B_0 = 1``)."""
     terms = _sh_terms(normals)
     terms[0] = terms[0] + normals[..., 0] * 0
-    if _is_torch(normals):
+    if is_torch(normals):
         import torch
 
         return torch.stack(terms, -1)
@@ -84,7 +84,7 @@ def sh_basis(normals):
 def _sh_coefficients(sh, like):
     """(9,) grey, (9, C), or (B, 9, C) -> an array/tensor shaped to broadcast to
     (..., 9, C) against ``like`` (..., 3)."""
-    if _is_torch(like):
+    if is_torch(like):
         import torch
 
         sh = torch.as_tensor(sh, dtype=like.dtype, device=like.device)
@@ -125,7 +125,7 @@ def shade_sh(normals, albedo, sh):
     B = sh_basis(normals)
     # einsum rather than B @ coef: BLAS threads make such skinny products many times
     # slower on a busy machine
-    if _is_torch(normals):
+    if is_torch(normals):
         import torch
 
         irradiance = torch.einsum("...k,...kc->...c", B, coef)
@@ -154,7 +154,7 @@ def shade_directional(normals, albedo, lights, ambient=0.0, visible=None):
     (..., 3) radiance, same type as ``normals``.
     """
     lights = [lights] if isinstance(lights, DirectionalLight) else list(lights)
-    torch_in = _is_torch(normals)
+    torch_in = is_torch(normals)
     if torch_in:
         import torch
 

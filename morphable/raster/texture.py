@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..arrays import is_torch
 from ..errors import InputError
-from .interpolate import _is_torch
 
 __all__ = ["as_texture", "sample_texture"]
 
@@ -61,7 +61,7 @@ def sample_texture(texture, uv):
            [0.5],
            [1. ]])
     """
-    if _is_torch(texture):
+    if is_torch(texture):
         import torch
         import torch.nn.functional as F
 

@@ -34,7 +34,7 @@ from ..logs import import_open3d
 
 __all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene"]
 
-_MESHES: "list[_Mesh]" = []  # most recently used last
+_MESHES: "list[CachedMesh]" = []  # most recently used last
 _MESH_CACHE_SIZE = 4
 _UV_TABLES: "OrderedDict[bytes, Visibility]" = OrderedDict()
 _UV_CACHE_SIZE = 8
@@ -148,9 +148,7 @@ class Visibility:
         per-corner texture coordinates.
         """
         if triangles is None:
-            if "corners" not in self._extra:
-                self._extra["corners"] = np.take(self.triangles, self._ids, axis=0)
-            return self._extra["corners"]
+            return self.cached("corners", lambda: np.take(self.triangles, self._ids, axis=0))
         return np.take(np.asarray(triangles), self._ids, axis=0)
 
     @cached_property
@@ -163,30 +161,39 @@ class Visibility:
         of sample p on the corner ids of its triangle (empty rows on background), so that
         ``matrix @ attributes`` interpolates. ``foreground=True``: only the rows of
         :attr:`pixels`, (N, n_rows). scipy CSR, cached per arguments."""
-        key = ("matrix", n_rows, None if triangles is None else _key(np.asarray(triangles)),
+        key = ("matrix", n_rows, None if triangles is None else array_key(np.asarray(triangles)),
                np.dtype(dtype).str, foreground)
-        if key not in self._extra:
-            import scipy.sparse as sp
+        return self.cached(key, lambda: self._matrix(n_rows, triangles, dtype, foreground))
 
-            tri = self.triangles if triangles is None else np.asarray(triangles)
-            # scipy keeps int32 indices as they are and copies int64 ones down to int32
-            small = max(n_rows, 3 * len(self.pixels) + 1, len(tri)) < 2 ** 31
-            itype = np.int32 if small else np.int64
-            idx = np.take(tri.astype(itype, copy=False), self._ids, axis=0)
-            if idx.size and idx.max() >= n_rows:
-                raise InputError(f"attributes have {n_rows} rows, the triangles index up to "
-                                 f"{idx.max()}")
-            if foreground:
-                indptr, rows = np.arange(0, 3 * len(idx) + 1, 3, dtype=itype), len(idx)
-            else:
-                size = self._shape[0] * self._shape[1]
-                count = np.zeros(size + 1, dtype=np.int64)
-                count[self.pixels + 1] = 3
-                indptr, rows = np.cumsum(count), size
-            self._extra[key] = sp.csr_matrix(
-                (self.weights.astype(dtype, copy=False).ravel(), idx.ravel(), indptr),
-                shape=(rows, n_rows))
-        return self._extra[key]
+    def _matrix(self, n_rows, triangles, dtype, foreground):
+        import scipy.sparse as sp
+
+        tri = self.triangles if triangles is None else np.asarray(triangles)
+        # scipy keeps int32 indices as they are and copies int64 ones down to int32
+        small = max(n_rows, 3 * len(self.pixels) + 1, len(tri)) < 2 ** 31
+        itype = np.int32 if small else np.int64
+        idx = np.take(tri.astype(itype, copy=False), self._ids, axis=0)
+        if idx.size and idx.max() >= n_rows:
+            raise InputError(f"attributes have {n_rows} rows, the triangles index up to "
+                             f"{idx.max()}")
+        if foreground:
+            indptr, rows = np.arange(0, 3 * len(idx) + 1, 3, dtype=itype), len(idx)
+        else:
+            size = self._shape[0] * self._shape[1]
+            count = np.zeros(size + 1, dtype=np.int64)
+            count[self.pixels + 1] = 3
+            indptr, rows = np.cumsum(count), size
+        return sp.csr_matrix(
+            (self.weights.astype(dtype, copy=False).ravel(), idx.ravel(), indptr),
+            shape=(rows, n_rows))
+
+    def cached(self, key, make):
+        """A value derived from this visibility (an interpolation matrix, say): ``make()``
+        on the first call with ``key`` (hashable), the kept value after."""
+        extra = self._extra
+        if key not in extra:
+            extra[key] = make()
+        return extra[key]
 
     def coverage(self) -> np.ndarray:
         """(H, W) float in [0, 1]: the fraction of each pixel's samples on the mesh."""
@@ -236,7 +243,8 @@ def check_mesh(vertices, triangles, what: str = "mesh"):
     return v, t
 
 
-def _key(*arrays) -> bytes:
+def array_key(*arrays) -> bytes:
+    """A cache key of arrays: a hash of their dtypes, shapes and bytes (20 bytes)."""
     h = hashlib.blake2b(digest_size=20)
     for a in arrays:
         a = np.ascontiguousarray(a)
@@ -266,7 +274,7 @@ def _import_open3d():
     return open3d
 
 
-class _Mesh:
+class CachedMesh:
     """A mesh seen before: its Embree scene and vertex normals, each built on first use.
 
     Found again by comparing the arrays themselves (a few microseconds), not a hash of them.
@@ -300,8 +308,8 @@ class _Mesh:
         return self._normals[weighting]
 
 
-def _mesh(vertices, triangles, add: bool = True):
-    """The cached :class:`_Mesh` of these arrays; a new one (cached if ``add``, else None)
+def cached_mesh(vertices, triangles, add: bool = True):
+    """The cached :class:`CachedMesh` of these arrays; a new one (cached if ``add``, else None)
     when they were not seen among the last few meshes."""
     v, t = np.asarray(vertices), np.asarray(triangles)
     with _LOCK:
@@ -311,7 +319,7 @@ def _mesh(vertices, triangles, add: bool = True):
                 return m
         if not add:
             return None
-        m = _Mesh(v, t)
+        m = CachedMesh(v, t)
         _MESHES.append(m)
         del _MESHES[:-_MESH_CACHE_SIZE]
     return m
@@ -322,7 +330,7 @@ def scene(vertices, triangles):
 
     ``vertices`` (V, 3) mm, ``triangles`` (F, 3) int -> ``open3d.t.geometry.RaycastingScene``.
     """
-    return _mesh(vertices, triangles).scene
+    return cached_mesh(vertices, triangles).scene
 
 
 def _barycentric(uv, seen):
@@ -538,4 +546,4 @@ def uv_visibility(triangles, uv, triangle_uv=None, size: int = 256) -> Visibilit
         return Visibility(tid, b,
                           np.zeros((size, size)), t, camera=None, supersample=1)
 
-    return _cached(_UV_TABLES, _UV_CACHE_SIZE, _key(t, uv, tuv, np.array([size])), make)
+    return _cached(_UV_TABLES, _UV_CACHE_SIZE, array_key(t, uv, tuv, np.array([size])), make)

@@ -33,7 +33,7 @@ def landmark_trust(fit, frame: int = 0) -> float:
     (px/mm). 1 for annotated landmarks, about 0.02 for detected ones (10 mm) at 3 px/mm; 1 when
     the fit does not record them. A detector's errors are face-shaped and shared by a video's
     frames: the refinement must not pull the face onto them harder than the fit did."""
-    from ..fitting.landmark_fit import MODEL_STD_MM
+    from ..fitting.noise import MODEL_STD_MM
 
     m = np.asarray(fit.model_std_mm, dtype=np.float64)
     if not len(m):

@@ -1,0 +1,204 @@
+"""The nonlinear stage of a landmark fit: a joint Levenberg-Marquardt over all parameters.
+
+Per frame: rotation (axis-angle increments, no gimbal lock), translation, scale (affine) or
+depth (perspective) and expressions; per group of frames: the shared coefficients (identity
+and landmark offsets). Analytic Jacobians, an optional Huber loss on the normalised residuals,
+and a Schur complement over the per-frame blocks that keeps a shared identity cheap for many
+frames. A step is tried with growing damping until it lowers the group's cost; blendshape
+weights stay >= 0 (projected steps).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import cross
+from .linear import gram_hessian, project_rows
+from .noise import weights
+from .pose import rotate
+from .problem import Problem, State, group_index, group_sum
+from .rows import residuals, shared_rows
+from .sliding import slide
+
+__all__ = ["lm_stage", "normal_equations"]
+
+
+def lm_stage(pb: Problem, st: State, n_iter: int, slide_every: int = 2):
+    """Up to ``n_iter`` Levenberg-Marquardt iterations from ``st``, re-picking the jaw
+    correspondences every ``slide_every``-th -> (state, iterations run)."""
+    N, K, E = pb.N, pb.K, pb.E
+    G = 1 if pb.shared else N
+    n_t = 3 if pb.perspective else 2
+    n_rho = 0 if pb.perspective else 1
+    Pf = 3 + n_t + n_rho + E
+    mu = np.full(G, 1e-3)
+    gidx = group_index(pb)
+    iters = 0
+    # a group that has converged stops moving, so that fitting frames together or alone
+    # gives the same result
+    active = np.ones(G, bool)
+    for it in range(n_iter):
+        if it % slide_every == 0 and it:
+            slide(pb, st)
+        Hff, gf, Hfa, Haa, ga, W, _, cost0 = normal_equations(pb, st)
+        accepted = ~active
+        stepped = np.zeros(G, bool)
+        gain = np.zeros(G)
+        for attempt in range(4):          # retry rejected groups with more damping
+            # independent frames: solve only the active ones still rejected
+            sel = slice(None) if pb.shared else np.flatnonzero(~accepted)
+            gs = slice(None) if pb.shared else sel
+            Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
+            m_f = mu[gidx[sel]][:, None]
+            Hd = Hs + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
+            sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
+            X1, x2 = sol[..., :K], sol[..., K]
+            df = np.zeros((N, Pf))
+            da = np.zeros((G, K))
+            if K:
+                Sa = Haa[gs] - group_sum(pb, Hfs.transpose(0, 2, 1) @ X1)
+                ba = ga[gs] - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
+                Sa = Sa + mu[gs, None, None] * (
+                    np.eye(K) * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
+                da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
+                df[sel] = -(x2 + (X1 @ da[gidx[sel]][..., None])[..., 0])
+            else:
+                df[sel] = -x2
+            new = _apply(pb, st, df, da, n_t, n_rho)
+            cost1 = np.full(G, np.inf)
+            cost1[gs] = _subset_cost(pb, new, W, sel)
+            ok = np.isfinite(cost1) & (cost1 <= cost0) & ~accepted
+            gain = np.where(ok, cost0 - cost1, gain)
+            if ok.any():
+                st = _merge(pb, st, new, ok[gidx], ok)
+                accepted |= ok
+                stepped |= ok
+                mu = np.where(ok, np.maximum(mu / 3, 1e-9), mu)
+            mu = np.where(~accepted, mu * 8, mu)
+            if accepted.all():
+                break
+        iters += 1
+        # a group stops when no damping gave it a better step, or when it has converged
+        active &= stepped & (gain > 1e-6 * np.maximum(cost0, 1e-12)) & (mu <= 1e8)
+        if not active.any():
+            break
+    return st, iters
+
+
+def normal_equations(pb: Problem, st: State):
+    """Gauss-Newton blocks at the current state, priors included: per frame Hff (N, Pf, Pf)
+    and gf over rotation, translation, scale (affine) and expressions; Hfa (N, Pf, K) to the
+    shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, 68), the group
+    costs (G,) and the expression bound's active set (N, Pf)."""
+    N, K, E = pb.N, pb.K, pb.E
+    n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
+    Pf = 3 + n_t + n_rho + E
+    act = np.zeros((N, Pf), bool)
+    X, uv, Xc, Jp, depth, r = residuals(pb, st, True)
+    W = _robust(pb, weights(pb, st, depth), r)
+    cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
+    # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
+    RX = Xc - st.t[:, None]
+    blocks = [cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
+    if n_rho:
+        blocks.append((uv - pb.principal[:, None])[..., None])     # d uv / d log(scale)
+    blocks = [np.concatenate(blocks, -1).transpose(0, 2, 1, 3)]
+    # the affine Jacobian is the same for every point: one GEMM per frame
+    JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
+    if E:
+        blocks.append(project_rows(JpR, st.rows[2]))
+    Jf = _across_rows(pb, np.concatenate(blocks, -1)).reshape(N, 136, Pf)
+    Ja4 = _across_rows(pb, project_rows(JpR, shared_rows(pb, st)))    # (N, 2, 68, K)
+    Ja = Ja4.reshape(N, 136, K)
+    w2 = np.concatenate([W, W], 1)[..., None]
+    rr = r.transpose(0, 2, 1).reshape(N, 136)
+    WJf, WJa = w2 * Jf, w2 * Ja
+    Hff = Jf.transpose(0, 2, 1) @ WJf
+    gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
+    if E:
+        Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
+        gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
+    Hfa = Jf.transpose(0, 2, 1) @ WJa
+    if E and pb.nonneg:
+        # blendshape weights held at 0 by the bound leave this step (projected Newton)
+        o = 3 + n_t + n_rho
+        act[:, o:] = (st.beta <= 0) & (gf[:, o:] > 0)
+        if act.any():
+            keep = ~act
+            Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
+            gf = np.where(keep, gf, 0.0)
+            Hfa = np.where(keep[:, :, None], Hfa, 0.0)
+    Haa = gram_hessian(JpR, W, Ja4, pb.gram)
+    ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
+    if pb.shared:
+        Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
+    Haa[:, np.arange(K), np.arange(K)] += pb.prior
+    ga = ga + pb.prior * st.alpha
+    return Hff, gf, Hfa, Haa, ga, W, act, cost0
+
+
+def _across_rows(pb: Problem, J):
+    """The same projection for coordinate-major Jacobian rows (N, 2, 68, P), in place, on the
+    jaw slice only."""
+    if pb.sliding is None:
+        return J
+    t = pb.tangent[:, pb.sliding].transpose(0, 2, 1)[..., None]      # (N, 2, J, 1)
+    Js = J[:, :, pb.sliding]
+    J[:, :, pb.sliding] = Js - t * (t * Js).sum(1, keepdims=True)
+    return J
+
+
+def _robust(pb, W, r):
+    if pb.robust is None:
+        return W
+    e = np.sqrt(W * (r * r).sum(-1))
+    return W * np.where(e > pb.huber_k, pb.huber_k / np.maximum(e, 1e-300), 1.0)
+
+
+def _data_cost(pb, st, W, r, depth, sel=slice(None)):
+    """(n,) per-frame costs of the frames ``sel`` (W, r, depth: theirs)."""
+    c = (W * (r * r).sum(-1)).sum(1)
+    if pb.perspective:
+        bad = ((W > 0) & (depth <= 1e-3)).any(1)
+        c = np.where(bad, np.inf, c)
+    if pb.E:
+        c = c + pb.expression_weight * (st.beta[sel] ** 2).sum(1)
+    return c
+
+
+def _group_cost(pb, st, frame_cost, sel=slice(None)):
+    """Group costs from the per-frame costs of the frames ``sel`` (all frames for a shared
+    identity)."""
+    g = frame_cost.sum(0, keepdims=True) if pb.shared else frame_cost
+    if pb.K:
+        alpha = st.alpha if pb.shared else st.alpha[sel]
+        g = g + (pb.prior * alpha ** 2).sum(1)
+    return g
+
+
+def _subset_cost(pb, st, W, sel):
+    """Group costs of the frames ``sel`` (all frames for a shared identity)."""
+    _, _, _, _, depth, r = residuals(pb, st, False, sel)
+    return _group_cost(pb, st, _data_cost(pb, st, W[sel], r, depth, sel), sel)
+
+
+def _apply(pb, st, df, da, n_t, n_rho):
+    t = st.t.copy()
+    t[:, :n_t] += df[:, 3:3 + n_t]
+    k = st.k * np.exp(np.clip(df[:, 3 + n_t], -2.0, 2.0)) if n_rho else st.k
+    o = 3 + n_t + n_rho
+    beta = st.beta
+    if pb.E:
+        beta = st.beta + df[:, o:]
+        if pb.nonneg:
+            beta = np.maximum(beta, 0.0)
+    alpha = st.alpha + da if pb.K else st.alpha
+    return State(rotate(st.R, df[:, :3]), t, k, alpha, beta, st.corr, st.rows)
+
+
+def _merge(pb, old, new, frames_ok, groups_ok):
+    if frames_ok.all() and groups_ok.all():
+        return new
+    f = frames_ok
+    return State(np.where(f[:, None, None], new.R, old.R), np.where(f[:, None], new.t, old.t),
+                  np.where(f, new.k, old.k), np.where(groups_ok[:, None], new.alpha, old.alpha),
+                  np.where(f[:, None], new.beta, old.beta), old.corr, old.rows)

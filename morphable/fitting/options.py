@@ -1,0 +1,115 @@
+"""The settings of a landmark fit, validated in one place.
+
+:func:`~morphable.fitting.landmark_fit.fit_landmarks` builds a :class:`FitOptions` from its
+keyword arguments (their meaning is documented there). Settings alone are checked when the
+options are made; the checks that need the frames or the model are the methods that resolve
+a setting for them (:meth:`FitOptions.frame_model_std`, :meth:`FitOptions.modes`,
+:meth:`FitOptions.focal`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .noise import DEFINITION_STD_MM, MODEL_STD_MM
+
+__all__ = ["FitOptions"]
+
+
+@dataclass(frozen=True, eq=False)
+class FitOptions:
+    """The settings of :func:`~morphable.fitting.landmark_fit.fit_landmarks`, with its defaults.
+
+    Raises InputError for a malformed setting. After validation ``model_std_mm`` and
+    ``definition_std_mm`` are float64 arrays ((), (N,) or (68,)) and ``dtype`` a numpy dtype.
+    """
+
+    camera: str = "affine"
+    n_iterations: int = 4
+    n_linear: int = 3
+    n_identity: int | None = None
+    n_expression: int | None = None
+    prior_weight: float = 1.0
+    expression_weight: float = 1.0
+    robust: str | None = None
+    huber_k: float = 1.345
+    shared_identity: bool = True
+    landmark_std_px: float | str = 1.0
+    model_std_mm: object = MODEL_STD_MM
+    definition_std_mm: object = field(default_factory=lambda: DEFINITION_STD_MM)
+    focal_px: object = None
+    contour: str = "slide"
+    dtype: object = np.float64
+
+    def __post_init__(self):
+        if self.camera not in ("affine", "perspective"):
+            raise InputError(f"camera: expected 'affine' or 'perspective', got {self.camera!r}")
+        if self.contour not in ("slide", "fixed"):
+            raise InputError(f"contour: expected 'slide' or 'fixed', got {self.contour!r}")
+        if self.robust not in (None, "huber"):
+            raise InputError(f"robust: expected None or 'huber', got {self.robust!r}")
+        auto = self.auto_std
+        if auto and self.landmark_std_px != "auto":
+            raise InputError(f"landmark_std_px: expected a number or 'auto', got "
+                             f"{self.landmark_std_px!r}")
+        definition_std_mm = np.asarray(self.definition_std_mm, dtype=np.float64)
+        if definition_std_mm.shape not in ((), (68,)):
+            raise InputError(f"definition_std_mm: expected a number or 68 numbers, got shape "
+                             f"{definition_std_mm.shape}")
+        for name, v in (("prior_weight", self.prior_weight),
+                        ("expression_weight", self.expression_weight),
+                        ("landmark_std_px", 1.0 if auto else self.landmark_std_px),
+                        ("model_std_mm", self.model_std_mm), ("definition_std_mm", definition_std_mm),
+                        ("huber_k", self.huber_k)):
+            if not (np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)):
+                raise InputError(f"{name}: must be finite and >= 0, got {v}")
+        model_std_mm = np.asarray(self.model_std_mm, dtype=np.float64)
+        if not auto and self.landmark_std_px == 0 and np.any(model_std_mm == 0):
+            raise InputError("landmark_std_px and model_std_mm cannot both be 0")
+        if self.focal_px is not None:
+            focal = np.asarray(self.focal_px, dtype=np.float64)
+            if not (np.all(np.isfinite(focal)) and np.all(focal > 0)):
+                raise InputError(f"focal_px: must be positive, got {self.focal_px}")
+        # frozen: the normalised values replace the given ones once, here
+        object.__setattr__(self, "definition_std_mm", definition_std_mm)
+        object.__setattr__(self, "model_std_mm", model_std_mm)
+        object.__setattr__(self, "dtype", np.dtype(self.dtype))
+
+    @property
+    def auto_std(self) -> bool:
+        """True for ``landmark_std_px="auto"``: the noise is estimated from the residuals."""
+        return isinstance(self.landmark_std_px, str)
+
+    @property
+    def start_std_px(self) -> float:
+        """The landmark noise the fit starts with, px (1 for ``"auto"``)."""
+        return 1.0 if self.auto_std else float(self.landmark_std_px)
+
+    @property
+    def perspective(self) -> bool:
+        return self.camera == "perspective"
+
+    def frame_model_std(self, n_frames: int) -> np.ndarray:
+        """(N,) ``model_std_mm`` of each of ``n_frames`` frames, mm (a read-only view)."""
+        if self.model_std_mm.shape not in ((), (n_frames,)):
+            raise InputError(f"model_std_mm: expected a number or one per frame ({n_frames}), "
+                             f"got shape {self.model_std_mm.shape}")
+        return np.broadcast_to(self.model_std_mm, (n_frames,))
+
+    def modes(self, model) -> tuple[int, int]:
+        """(K, E): the identity and expression modes of ``model`` the fit solves for."""
+        K = model.n_identity if self.n_identity is None else int(self.n_identity)
+        E = model.n_expression if self.n_expression is None else int(self.n_expression)
+        if not (0 <= K <= model.n_identity) or not (0 <= E <= model.n_expression):
+            raise InputError(f"n_identity/n_expression must be in [0, {model.n_identity}] / "
+                             f"[0, {model.n_expression}], got {K} / {E}")
+        return K, E
+
+    def focal(self, size) -> np.ndarray:
+        """(N,) pinhole focal length of each frame, px: ``focal_px``, else ``max(W, H)`` of
+        ``size`` (N, 2)."""
+        if self.focal_px is None:
+            return size.max(1)
+        return np.broadcast_to(np.asarray(self.focal_px, dtype=np.float64), (len(size),)).copy()

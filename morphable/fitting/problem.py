@@ -1,0 +1,136 @@
+"""The data of one landmark fit: its fixed :class:`Problem` and its changing :class:`State`.
+
+The stages of a fit (:mod:`~morphable.fitting.linear_stage`, :mod:`~morphable.fitting.nonlinear`,
+:mod:`~morphable.fitting.noise_estimation`) are functions of the two. ``N`` frames fall in
+``G`` groups that share an identity: one group for a shared identity, else one per frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import FitError, InputError
+from ..landmarks import as_landmarks
+from .noise import expression_precision
+from .options import FitOptions
+from .rows import basis_rows, fixed_gram, size_direction
+
+__all__ = ["Problem", "State", "as_frames", "group_index", "group_sum"]
+
+
+def as_frames(landmarks, mask, image_size):
+    """Validate a fit's data: ``landmarks`` (68, 2) or (N, 68, 2) px (NaN rows missing),
+    ``mask`` None or (68,) or (N, 68) bool, ``image_size`` (W, H) or (N, 2) px -> ``y``
+    (N, 68, 2), ``given`` (N, 68) bool, ``size`` (N, 2) float64. InputError if malformed."""
+    y, given = as_landmarks(landmarks, "landmarks")
+    if y.ndim == 2:
+        y, given = y[None], given[None]
+    if y.ndim != 3:
+        raise InputError(f"landmarks: expected (68, 2) or (N, 68, 2), got {np.shape(landmarks)}")
+    N = y.shape[0]
+    if N == 0:
+        raise InputError("landmarks: no frames given")
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape not in ((68,), (N, 68)):
+            raise InputError(f"mask: expected (68,) or ({N}, 68) booleans, got {m.shape}")
+        given = given & np.broadcast_to(m, given.shape)
+    size = np.asarray(image_size, dtype=np.float64)
+    if size.shape == (2,):
+        size = np.broadcast_to(size, (N, 2))
+    if size.shape != (N, 2) or not np.all(np.isfinite(size)) or not np.all(size > 0):
+        raise InputError(f"image_size: expected positive (W, H) or one per frame ({N}, 2), "
+                         f"got {np.shape(image_size)}")
+    return y, given, size
+
+
+class Problem:
+    """Fixed data of a fit: landmarks, weights, sizes and settings.
+
+    Made from the model, its landmark rows
+    (:func:`~morphable.fitting.correspondences.landmark_bank`), the validated settings and the frames of :func:`as_frames` (``y`` (N, 68, 2) px, ``given``
+    (N, 68) bool, ``size`` (N, 2) px); checks the settings against them (InputError) and
+    raises FitError for a frame with fewer than 4 usable landmarks (given and defined on the
+    model). ``mask`` (N, 68) holds the usable ones.
+    """
+
+    def __init__(self, model, bank, options: FitOptions, y, given, size):
+        N = y.shape[0]
+        model_std_mm = options.frame_model_std(N)
+        K, E = options.modes(model)
+        focal = options.focal(size)
+        mask = given & bank.usable[None]
+        if (mask.sum(1) < 4).any():
+            f = int(np.argmax(mask.sum(1) < 4))
+            raise FitError(f"frame {f}: {int(mask[f].sum())} usable landmarks "
+                           f"(given and defined on model {model.name}), need at least 4")
+        self.model, self.options, self.given, self.size = model, options, given, size
+        self.bank, self.y, self.mask, self.principal = bank, y, mask, (size - 1) / 2.0
+        # the given landmarks; ``y`` holds the jaw targets moved along the outline, ``tangent``
+        # the outline's direction at each jaw point (0 elsewhere): only residuals across count
+        self.y_obs = y
+        self.tangent = np.zeros_like(y)
+        self.focal, self.perspective, self.K, self.E = focal, options.perspective, K, E
+        self.shared, self.nonneg = options.shared_identity, model.expression_kind == "blendshapes"
+        self.prior_weight = float(options.prior_weight)
+        self.expression_weight = float(options.expression_weight) * expression_precision(model)
+        self.landmark_std_px = options.start_std_px
+        self.model_std_mm = model_std_mm
+        self.robust, self.huber_k = options.robust, float(options.huber_k)
+        self.N = N
+        # a landmark's definition error is shared by every frame of a subject: with one
+        # identity for several frames it gets its own coefficients (a 3D offset per landmark,
+        # N(0, definition_std_mm^2) per coordinate), appended to the identity's; alone, a frame
+        # cannot tell it from noise and it only widens the landmark's variance
+        definition_std_mm = np.broadcast_to(options.definition_std_mm, (y.shape[1],))
+        self.offsets = bool(self.shared and self.N > 1 and np.any(definition_std_mm > 0))
+        self.n_identity = K
+        sliding = [int(j) for lms, _ in bank.polylines for j in lms]
+        self.sliding_landmarks = np.asarray(sliding, dtype=np.int64)
+        # sliding jaw points are defined by the outline they slide on: no offset
+        self.offset_landmarks = np.setdiff1d(np.arange(y.shape[1]), sliding)
+        self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
+        self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
+        self.definition_std_mm = definition_std_mm
+        self.prior = np.r_[np.full(K, self.prior_weight), np.ones(self.D)]
+        self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
+        # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
+        # copy much faster than index lists into the (N, 3, 68, K) rows. None where no frame
+        # gives an outline point (51-point annotations, detectors that drop the jaw): then
+        # nothing slides and the outline is never computed
+        slides = bool(sliding) and bool(mask[:, sliding].any())
+        self.sliding = slice(min(sliding), max(sliding) + 1) if slides else None
+        # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
+        # with the Huber loss, offsets or a definition error that differs between landmarks
+        fixed_std = self.frame_def_std[bank.fixed_row >= 0]
+        uniform = fixed_std.size == 0 or np.all(fixed_std == fixed_std[0])
+        self.gram = (fixed_gram(bank, K, self.sliding)
+                     if self.robust is None and K and not self.offsets and uniform else None)
+        self.size_direction = size_direction(bank, K) if self.offsets else None
+        self.K = K + self.D          # the shared coefficients: identity, then offsets
+
+
+class State:
+    """Cameras, coefficients, correspondences, and the model rows gathered for them.
+
+    ``residuals`` caches :func:`~morphable.fitting.rows.residuals` of all frames (None until
+    computed; cleared when the correspondences or their targets move): a step's trial cost and
+    the next iteration's normal equations need the same points."""
+
+    def __init__(self, R, t, k, alpha, beta, corr, rows=None):
+        self.R, self.t, self.k, self.alpha, self.beta, self.corr = R, t, k, alpha, beta, corr
+        self.rows = rows
+        self.residuals = None
+
+    def copy(self):
+        return State(self.R.copy(), self.t.copy(), self.k.copy(), self.alpha.copy(),
+                      self.beta.copy(), self.corr, self.rows)
+
+
+def group_index(pb: Problem) -> np.ndarray:
+    """(N,) the group of frames (one shared identity) each frame belongs to."""
+    return np.zeros(pb.N, int) if pb.shared else np.arange(pb.N)
+
+
+def group_sum(pb: Problem, x):
+    """Per-frame values (N, ...) summed over each group of frames -> (G, ...)."""
+    return x.sum(0, keepdims=True) if pb.shared else x
