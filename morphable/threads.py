@@ -11,7 +11,9 @@ library limits BLAS itself instead of asking for environment variables.
 :class:`single_blas_thread` holds BLAS at one thread for the duration of a block or a call.
 It nests and is safe across Python threads (the first to enter sets the limit, the last to
 leave restores what was there). threadpoolctl is imported on first use, so that ``import
-morphable`` stays light, and its scan of the loaded libraries is made once per process.
+morphable`` stays light; its scan of the loaded libraries (about a millisecond) is redone
+only when modules were imported since the last one, which is how another BLAS arrives
+(scipy ships its own OpenBLAS).
 
 Examples
 --------
@@ -25,6 +27,7 @@ Examples
 from __future__ import annotations
 
 import contextlib
+import sys
 import threading
 
 __all__ = ["single_blas_thread"]
@@ -33,14 +36,16 @@ _lock = threading.Lock()
 _depth = 0
 _limiter = None
 _controller = None
+_modules_seen = -1
 
 
 def _blas_controller():
-    global _controller
-    if _controller is None:
+    global _controller, _modules_seen
+    if _controller is None or len(sys.modules) != _modules_seen:
         from threadpoolctl import ThreadpoolController
 
         _controller = ThreadpoolController()
+        _modules_seen = len(sys.modules)
     return _controller
 
 
