@@ -341,7 +341,7 @@ def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
     # not error_vs_runtime.*: evaluation.report writes those (the README's figure)
     with atomic_path(folder / "fitting_error_vs_runtime.json") as tmp:
         tmp.write_text(json.dumps(result, indent=1))
-    from morphable.plots import fitting_sweep
+    from evaluation.plots import fitting_sweep
 
     fitting_sweep(result, folder / "fitting_error_vs_runtime.png")
     return result

@@ -734,7 +734,7 @@ def main(argv=None) -> int:
         raise InputError("--focal-px applies to --frames-dir (synthetic videos know their focal)")
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
     if args.plot:
-        from morphable.plots import check_plot_path
+        from evaluation.plots import check_plot_path
 
         check_plot_path(args.plot)
     common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
@@ -770,7 +770,7 @@ def main(argv=None) -> int:
     print(format_table(report))
     _write_outputs(report, errors, report_path, errors_path)
     if args.plot:
-        from morphable.plots import condition_bars
+        from evaluation.plots import condition_bars
 
         condition_bars(report, args.plot)
     if args.heatmaps:

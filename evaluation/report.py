@@ -121,7 +121,7 @@ def _markdown(result: dict) -> str:
 def write_outputs(result: dict, out: Path, stem: str = "error_vs_runtime") -> list:
     """Write ``stem``.png/.json/.md into ``out`` (atomically) -> the paths."""
     from morphable.io.atomic import atomic_path
-    from morphable.plots import error_vs_runtime
+    from evaluation.plots import error_vs_runtime
 
     paths = [out / f"{stem}.{ext}" for ext in ("png", "json", "md")]
     error_vs_runtime(result, paths[0])

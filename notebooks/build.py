@@ -156,12 +156,12 @@ print(f"scan: {scan.units}, inter-ocular {scan.interocular_mm:.1f} mm")
 report, errors = run_protocol(scan, model, ["ours", "eos", "mean-face"], ["cooperative", "outdoor"],
                               n_sampled=3, n_frames=10, seed=0)
 print(format_table(report))'''),
-        new_markdown_cell("## Per-condition errors\n\n`morphable.plots.condition_bars` "
-                          "(also `morphable plot report.json --out bars.png`)."),
+        new_markdown_cell("## Per-condition errors\n\n`evaluation.plots.condition_bars` "
+                          "(also `python -m evaluation.plots report.json --out bars.png`)."),
         new_code_cell('''\
 from PIL import Image
 
-from morphable.plots import condition_bars
+from evaluation.plots import condition_bars
 
 bars = condition_bars(report, OUT / "florence_bars.png")
 plt.figure(figsize=(7, 3.5))

@@ -2,6 +2,7 @@
 import io
 import logging
 import warnings
+from pathlib import Path
 
 import pytest
 
@@ -68,9 +69,10 @@ def test_fresh_matplotlib_cache_is_silent(tmp_path, data_dir):
     report = tmp_path / "r.json"
     report.write_text('{"sigma_px": 1, "n": 1, "curves": {"n_identity=5": '
                       '[{"n_iterations": 0, "ms": 1.0, "mean_mm": 2.0}]}}')
-    run = subprocess.run([sys.executable, "-m", "morphable.cli", "plot", str(report),
+    run = subprocess.run([sys.executable, "-m", "evaluation.plots", str(report),
                           "--kind", "sweep", "--out", str(tmp_path / "p.png")],
-                         capture_output=True, text=True, env=env, timeout=300)
+                         capture_output=True, text=True, env=env, timeout=300,
+                         cwd=Path(__file__).resolve().parents[1])
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "mpl").is_dir()            # matplotlib did build its cache here
     assert run.stderr == ""

@@ -1,7 +1,9 @@
 """Plots of evaluation reports: bar heights follow the numbers, curves, report kinds, errors."""
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +12,8 @@ from PIL import Image
 from morphable import InputError
 
 pytest.importorskip("matplotlib")
-from morphable.plots import (check_plot_path, condition_bars, error_vs_runtime,  # noqa: E402
-                             fitting_sweep, plot_report, report_kind)
+from evaluation.plots import (check_plot_path, condition_bars, error_vs_runtime,  # noqa: E402
+                              fitting_sweep, plot_report, report_kind)
 
 BLUE, ORANGE = (0x1F, 0x77, 0xB4), (0xFF, 0x7F, 0x0E)  # matplotlib's first two colours
 
@@ -100,14 +102,17 @@ def test_report_kinds_and_files(tmp_path):
 
 def test_cli_plot(tmp_path):
     (tmp_path / "f.json").write_text(json.dumps(FLORENCE))
-    run = lambda *a: subprocess.run([sys.executable, "-m", "morphable.cli", *map(str, a)],  # noqa: E731
-                                    capture_output=True, text=True, cwd=tmp_path)
-    out = run("plot", "f.json", "--out", "f.png")
+    repo = Path(__file__).resolve().parents[1]
+    run = lambda *a: subprocess.run([sys.executable, "-m", "evaluation.plots", *map(str, a)],  # noqa: E731
+                                    capture_output=True, text=True, cwd=tmp_path,
+                                    env={**os.environ, "PYTHONPATH": str(repo)})
+    out = run("f.json", "--out", "f.png")
     assert out.returncode == 0, out.stderr
     assert Image.open(tmp_path / "f.png").size[0] >= 500
-    bad = run("plot", "missing.json", "--out", "m.png")
+    bad = run("missing.json", "--out", "m.png")
     assert bad.returncode == 2 and "missing.json: no such report" in bad.stderr
-    bad = run("plot", "f.json", "--out", "m.bmp")
+    assert bad.stderr.count("\n") == 1
+    bad = run("f.json", "--out", "m.bmp")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert not (tmp_path / "m.png").exists() and not (tmp_path / "m.bmp").exists()
 

@@ -7,7 +7,7 @@
   error-vs-runtime result (the best effort level of each method);
 - :func:`fitting_sweep` — ``evaluation.bench_fitting``'s synthetic sweep (``{"curves", ...}``);
 - :func:`plot_report` — any of these from a JSON file, chosen by its keys
-  (``morphable plot REPORT.json --out plot.png``).
+  (``python -m evaluation.plots REPORT.json --out plot.png``).
 
 Figures are drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (no pyplot
 state, no display needed) and written atomically; every function returns the path.
@@ -22,12 +22,14 @@ Examples
 """
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from morphable.errors import InputError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["error_vs_runtime", "condition_bars", "fitting_sweep", "plot_report", "report_kind",
            "check_plot_path"]
@@ -57,7 +59,7 @@ def check_plot_path(path) -> Path:
 
 
 def _save(fig, path, dpi=120) -> Path:
-    from .io.atomic import atomic_path
+    from morphable.io.atomic import atomic_path
 
     path = check_plot_path(path)
     fmt = path.suffix.lstrip(".").lower()
@@ -253,3 +255,27 @@ def plot_report(report_path, out, kind: str | None = None) -> Path:
         raise InputError(f"{p}: {e}") from None
     except (KeyError, TypeError, AttributeError) as e:
         raise _key_error(p, e) from None
+
+
+@one_line_errors("python -m evaluation.plots")
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m evaluation.plots",
+                                description="plot an evaluation report JSON (matplotlib)")
+    p.add_argument("report", metavar="REPORT", help="JSON of evaluation.report, evaluation.florence "
+                                                    "or evaluation.bench_fitting")
+    p.add_argument("--out", required=True, help="output image (.png, .pdf, .svg)")
+    p.add_argument("--kind", choices=("runtime", "bars", "sweep"),
+                   help="plot (default: error vs run time for evaluation.report, per-condition "
+                        "bars for Florence reports, the sweep for bench_fitting)")
+    add_verbosity_arguments(p)
+    args = p.parse_args(argv)
+    configure(verbosity(args))
+    check_plot_path(args.out)
+    if not Path(args.report).is_file():
+        raise InputError(f"{args.report}: no such report")
+    print(plot_report(args.report, args.out, kind=args.kind))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
