@@ -150,6 +150,60 @@ def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
         assert e.shape == (sfm.n_vertices,) and np.isfinite(e).sum() == ours["n_vertices"]
 
 
+def test_a_registered_method_runs_in_the_protocol(sfm, monkeypatch, tmp_path):
+    """A method is one class in the registry: run_protocol makes it, prepares it once for the
+    scan and gives it each condition's frames and its settings; its error maps are saved with
+    the others."""
+    from evaluation.florence import methods
+    from evaluation.florence.protocol import run_protocol, save_error_maps
+
+    calls = []
+
+    class Mean(methods.Method):
+        name = "test-mean"
+
+        def prepare(self, model, scan=None):
+            super().prepare(model, scan)
+            calls.append(("prepare", scan))
+
+        def reconstruct(self, frames, settings):
+            calls.append(("reconstruct", len(frames), frames.image_size, settings))
+            return methods.Reconstruction.from_vertices(
+                self.model, self.model.mean.astype(np.float64), 0.0, len(frames), {"seen": 1})
+
+    scan = model_scan(sfm, np.random.default_rng(1).standard_normal(sfm.n_identity))
+    conds = ["cooperative", "outdoor"]
+    with pytest.raises(InputError, match="unknown method 'test-mean'"):
+        run_protocol(scan, sfm, ["test-mean"], conds, n_sampled=2, n_frames=6)
+    monkeypatch.setitem(methods.METHODS, "test-mean", Mean)
+    report, errors = run_protocol(scan, sfm, ["test-mean", "mean-face"], conds, n_sampled=2,
+                                  n_frames=6, efforts={"test-mean": {"level": 3}})
+    assert calls == [("prepare", scan), ("reconstruct", 2, (512, 512), {"level": 3}),
+                     ("reconstruct", 2, (256, 256), {"level": 3})]
+    maps = error_maps(errors)
+    assert list(maps) == [("test-mean", "cooperative"), ("mean-face", "cooperative"),
+                          ("test-mean", "outdoor"), ("mean-face", "outdoor")]
+    for c in conds:
+        # the same mesh as mean-face's, compared alike (open3d's ICP differs in the last bits
+        # from one call to the next)
+        ours, mean = report["methods"]["test-mean"][c], report["methods"]["mean-face"][c]
+        assert ours["seen"] == 1 and mean["mean_mm"] > 0.5
+        assert ours["mean_mm"] == pytest.approx(mean["mean_mm"], rel=1e-9)
+        np.testing.assert_allclose(maps["test-mean", c].errors, maps["mean-face", c].errors,
+                                   rtol=1e-9)
+    # the .npz: four arrays per map under "method/condition[/part]"
+    save_error_maps(tmp_path / "e.npz", errors)
+    with np.load(tmp_path / "e.npz") as f:
+        assert sorted(f.files) == sorted(f"{m}/{c}{part}" for m, c in maps
+                                         for part in ("", "/vertex_ids", "/vertices", "/triangles"))
+        m = maps["test-mean", "outdoor"]
+        np.testing.assert_array_equal(f["test-mean/outdoor"], m.errors)
+        np.testing.assert_array_equal(f["test-mean/outdoor/vertices"], m.vertices)
+        np.testing.assert_array_equal(f["test-mean/outdoor/triangles"], m.triangles)
+        np.testing.assert_array_equal(f["test-mean/outdoor"][f["test-mean/outdoor/vertex_ids"]],
+                                      m.mesh_errors)
+
+
 def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm):
     from evaluation.florence.methods import Reconstruction, prepare_methods
     from evaluation.florence.protocol import evaluate, run_protocol
