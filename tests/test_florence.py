@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from morphable.errors import InputError
+from morphable.errors import FitError, InputError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -191,6 +191,13 @@ def test_a_registered_method_runs_in_the_protocol(sfm, monkeypatch, tmp_path):
         assert ours["mean_mm"] == pytest.approx(mean["mean_mm"], rel=1e-9)
         np.testing.assert_allclose(maps["test-mean", c].errors, maps["mean-face", c].errors,
                                    rtol=1e-9)
+    # a frame with fewer than MIN_LANDMARKS landmarks is left out before the method sees it
+    lm = np.zeros((2, 68, 2))
+    lm[0, methods.MIN_LANDMARKS - 1:] = np.nan
+    mean = methods.prepare_methods(["test-mean"], sfm, scan)["test-mean"]
+    assert methods.reconstruct_video(mean, methods.Frames(lm, (64, 64))).n_frames == 1
+    with pytest.raises(FitError, match="test-mean: no frame has 10 landmarks"):
+        methods.reconstruct_video(mean, methods.Frames(lm[:1], (64, 64)))
     # the .npz: four arrays per map under "method/condition[/part]"
     save_error_maps(tmp_path / "e.npz", errors)
     with np.load(tmp_path / "e.npz") as f:

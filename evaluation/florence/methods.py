@@ -115,7 +115,8 @@ class Method:
 
     def prepare(self, model, scan: Scan | None = None) -> None:
         """Get ready for the videos of ``scan`` with ``model`` (MorphableModel); untimed.
-        Subclasses that do more call this first."""
+        Subclasses that do more call this first. An error here stops the run (a FitError
+        of :meth:`reconstruct` fails one cell only)."""
         self.model, self.scan = model, scan
 
     def reconstruct(self, frames: Frames, settings: dict) -> Reconstruction:
