@@ -198,8 +198,8 @@ try:
 except ImportError:
     show_mesh = None
 if show_mesh is not None:
-    shot = show_mesh(errors[key + "/vertices"], errors[key + "/triangles"], errors=e, error_range=(0, 4),
-                     size=(480, 360), screenshot=OUT / "errors_3d.png")
+    shot = show_mesh(ours.vertices, ours.triangles, errors=e, error_range=(0, 4), size=(480, 360),
+                     screenshot=OUT / "errors_3d.png")
     plt.figure(figsize=(5, 4))
     plt.imshow(Image.open(shot))
     plt.axis("off")
