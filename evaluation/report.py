@@ -22,7 +22,8 @@ from tqdm import tqdm
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .florence import evaluate, gar_refiner, reconstruct, video_landmarks
+from .florence.methods import Frames, prepare_methods, reconstruct_video
+from .florence.protocol import evaluate, video_landmarks
 from .scans import UNITS, load_scan
 from .videos import CONDITIONS
 
@@ -60,13 +61,13 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
     frames = sorted({e["frames"] for m in methods for e in EFFORTS[m]})
     if max(frames) > video_frames:
         raise InputError(f"--video-frames {video_frames}: effort levels need {max(frames)} frames")
-    if "gar" in methods:
-        gar_refiner()       # before minutes of other methods' fits
+    # made and prepared before minutes of videos and fits (gar: fails here without the plugin)
+    made = prepare_methods(methods, model, scan)
     # gar refines the rendered frames themselves
     videos = {(c, k): video_landmarks(scan, model, c, k, video_frames, seed,
-                                      with_frames="gar" in methods)
+                                      with_frames=any(m.needs_images for m in made.values()))
               for c in conditions for k in frames}
-    points, peers = [], {}
+    points = []
     bar = tqdm(total=sum(len(EFFORTS[m]) for m in methods) * len(conditions), disable=not progress,
                desc="error vs run time", unit="fit")
     for m in methods:
@@ -76,8 +77,8 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
                 bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
                 lm, size, desc, images = videos[(c, effort["frames"])]
                 try:
-                    rec = reconstruct(m, model, lm, size, effort["settings"], peers, images,
-                                      desc.get("focal_px"))
+                    rec = reconstruct_video(made[m], Frames(lm, size, images, desc.get("focal_px")),
+                                            effort["settings"])
                     cell, _ = evaluate(rec, scan)
                 except FitError as e:
                     per[c] = {"error": str(e)}

@@ -146,7 +146,7 @@ python -m evaluation.florence --scan ../shared/data/scans/james/james.obj \\
 ```"""),
         new_code_cell(SETUP),
         new_code_cell('''\
-from evaluation.florence import format_table, run_protocol
+from evaluation.florence.protocol import format_table, run_protocol
 from evaluation.scans import load_scan
 from morphable import load_model
 
@@ -174,19 +174,17 @@ assert ok and all(0 < c["mean_mm"] < 5 for c in ok)'''),
                           "of `ours` (cooperative) on the aligned reconstruction, frontal view, "
                           "0–4 mm (grey: outside the crop)."),
         new_code_cell('''\
-from evaluation.florence import save_heatmap
+from evaluation.florence.protocol import save_heatmap
 from evaluation.videos import frontal_frame
 
-key = "ours/cooperative"
-ids = errors[key + "/vertex_ids"]
-e = errors[key][ids]
+ours = next(m for m in errors if (m.method, m.condition) == ("ours", "cooperative"))
+e = ours.mesh_errors
 frame = frontal_frame(scan.landmarks, model.landmark_positions())
-save_heatmap(OUT / "heatmap_ours_cooperative.png", errors[key + "/vertices"], errors[key + "/triangles"],
-             e, frame, size=256)
+save_heatmap(OUT / "heatmap_ours_cooperative.png", ours.vertices, ours.triangles, e, frame, size=256)
 fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
 a.imshow(Image.open(OUT / "heatmap_ours_cooperative.png"))
 a.axis("off")
-a.set_title(key)
+a.set_title("ours, cooperative")
 b.hist(e[np.isfinite(e)], bins=50, color="tab:blue")
 b.set_xlabel("point-to-plane error (mm)")
 b.set_ylabel("vertices")
@@ -200,8 +198,8 @@ try:
 except ImportError:
     show_mesh = None
 if show_mesh is not None:
-    shot = show_mesh(errors[key + "/vertices"], errors[key + "/triangles"], errors=e, error_range=(0, 4),
-                     size=(480, 360), screenshot=OUT / "errors_3d.png")
+    shot = show_mesh(ours.vertices, ours.triangles, errors=e, error_range=(0, 4), size=(480, 360),
+                     screenshot=OUT / "errors_3d.png")
     plt.figure(figsize=(5, 4))
     plt.imshow(Image.open(shot))
     plt.axis("off")

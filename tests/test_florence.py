@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from morphable.errors import InputError
+from morphable.errors import FitError, InputError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -129,8 +129,13 @@ def model_scan(model, alpha):
                 landmarks=model.landmark_positions(alpha), source="model sample")
 
 
+def error_maps(errors):
+    """run_protocol's error maps by (method, condition)."""
+    return {(m.method, m.condition): m for m in errors}
+
+
 def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
-    from evaluation.florence import run_protocol
+    from evaluation.florence.protocol import run_protocol
 
     rng = np.random.default_rng(0)
     scan = model_scan(sfm, rng.standard_normal(sfm.n_identity) * 1.5)
@@ -141,12 +146,74 @@ def test_fit_of_true_identity_beats_mean_face_on_a_model_scan(sfm):
         # clear margin with small noise; outdoor (3 px at 256 px) only has to beat the mean
         margin = 0.8 if c == "cooperative" else 1.0
         assert ours["mean_mm"] < margin * mean["mean_mm"], (c, ours, mean)
-        e = errors[f"ours/{c}"]
+        e = error_maps(errors)["ours", c].errors
         assert e.shape == (sfm.n_vertices,) and np.isfinite(e).sum() == ours["n_vertices"]
 
 
+def test_a_registered_method_runs_in_the_protocol(sfm, monkeypatch, tmp_path):
+    """A method is one class in the registry: run_protocol makes it, prepares it once for the
+    scan and gives it each condition's frames and its settings; its error maps are saved with
+    the others."""
+    from evaluation.florence import methods
+    from evaluation.florence.protocol import run_protocol, save_error_maps
+
+    calls = []
+
+    class Mean(methods.Method):
+        name = "test-mean"
+
+        def prepare(self, model, scan=None):
+            super().prepare(model, scan)
+            calls.append(("prepare", scan))
+
+        def reconstruct(self, frames, settings):
+            calls.append(("reconstruct", len(frames), frames.image_size, settings))
+            return methods.Reconstruction.from_vertices(
+                self.model, self.model.mean.astype(np.float64), 0.0, len(frames), {"seen": 1})
+
+    scan = model_scan(sfm, np.random.default_rng(1).standard_normal(sfm.n_identity))
+    conds = ["cooperative", "outdoor"]
+    with pytest.raises(InputError, match="unknown method 'test-mean'"):
+        run_protocol(scan, sfm, ["test-mean"], conds, n_sampled=2, n_frames=6)
+    monkeypatch.setitem(methods.METHODS, "test-mean", Mean)
+    report, errors = run_protocol(scan, sfm, ["test-mean", "mean-face"], conds, n_sampled=2,
+                                  n_frames=6, efforts={"test-mean": {"level": 3}})
+    assert calls == [("prepare", scan), ("reconstruct", 2, (512, 512), {"level": 3}),
+                     ("reconstruct", 2, (256, 256), {"level": 3})]
+    maps = error_maps(errors)
+    assert list(maps) == [("test-mean", "cooperative"), ("mean-face", "cooperative"),
+                          ("test-mean", "outdoor"), ("mean-face", "outdoor")]
+    for c in conds:
+        # the same mesh as mean-face's, compared alike (open3d's ICP differs in the last bits
+        # from one call to the next)
+        ours, mean = report["methods"]["test-mean"][c], report["methods"]["mean-face"][c]
+        assert ours["seen"] == 1 and mean["mean_mm"] > 0.5
+        assert ours["mean_mm"] == pytest.approx(mean["mean_mm"], rel=1e-9)
+        np.testing.assert_allclose(maps["test-mean", c].errors, maps["mean-face", c].errors,
+                                   rtol=1e-9)
+    # a frame with fewer than MIN_LANDMARKS landmarks is left out before the method sees it
+    lm = np.zeros((2, 68, 2))
+    lm[0, methods.MIN_LANDMARKS - 1:] = np.nan
+    mean = methods.prepare_methods(["test-mean"], sfm, scan)["test-mean"]
+    assert methods.reconstruct_video(mean, methods.Frames(lm, (64, 64))).n_frames == 1
+    with pytest.raises(FitError, match="test-mean: no frame has 10 landmarks"):
+        methods.reconstruct_video(mean, methods.Frames(lm[:1], (64, 64)))
+    # the .npz: four arrays per map under "method/condition[/part]"
+    save_error_maps(tmp_path / "e.npz", errors)
+    with np.load(tmp_path / "e.npz") as f:
+        assert sorted(f.files) == sorted(f"{m}/{c}{part}" for m, c in maps
+                                         for part in ("", "/vertex_ids", "/vertices", "/triangles"))
+        m = maps["test-mean", "outdoor"]
+        np.testing.assert_array_equal(f["test-mean/outdoor"], m.errors)
+        np.testing.assert_array_equal(f["test-mean/outdoor/vertices"], m.vertices)
+        np.testing.assert_array_equal(f["test-mean/outdoor/triangles"], m.triangles)
+        np.testing.assert_array_equal(f["test-mean/outdoor"][f["test-mean/outdoor/vertex_ids"]],
+                                      m.mesh_errors)
+
+
 def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm):
-    from evaluation.florence import _reconstruction, evaluate, reconstruct, run_protocol
+    from evaluation.florence.methods import Reconstruction, prepare_methods
+    from evaluation.florence.protocol import evaluate, run_protocol
     from evaluation.landmark_definitions import fit_surface
     from evaluation.scans import Scan
 
@@ -160,7 +227,7 @@ def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm)
                 landmarks=sfm.landmark_positions(alpha, beta) @ R.T + 40.0, source="model face")
     a, b = fit_surface(sfm, scan, iterations=15, expression=True, pose="joint")
     assert np.all((b >= 0) & (b <= 1)) and abs(b[0] - 0.6) < 0.1
-    cell, _ = evaluate(_reconstruction(sfm, sfm.vertices(a, b), 0.0, 1), scan)
+    cell, _ = evaluate(Reconstruction.from_vertices(sfm, sfm.vertices(a, b), 0.0, 1), scan)
     assert cell["mean_mm"] < 0.1, cell
     # on a real scan it is far below the mean face, and it needs the scan
     report, _ = run_protocol(james, sfm, ["mean-face", "surface-fit"], ["cooperative"],
@@ -168,14 +235,15 @@ def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm)
     floor, mean = (report["methods"][m]["cooperative"] for m in ("surface-fit", "mean-face"))
     assert floor["mean_mm"] < 0.6 * mean["mean_mm"], (floor, mean)
     with pytest.raises(InputError, match="needs the scan"):
-        reconstruct("surface-fit", sfm, np.zeros((1, 68, 2)), (64, 64))
+        prepare_methods(["surface-fit"], sfm)
 
 
 def test_landmarks_3d_fit(sfm):
     """The model fitted to a subject's own 3D landmarks (no images): on a model face whose
     annotations are off by 2.5 mm it is clearly better than the mean face, whatever the size and
     place of the landmarks (a similarity is fitted with it)."""
-    from evaluation.florence import _reconstruction, evaluate, reconstruct
+    from evaluation.florence.methods import Reconstruction, prepare_methods
+    from evaluation.florence.protocol import evaluate
     from evaluation.landmark_definitions import fit_landmarks_3d
     from evaluation.scans import Scan, model_scan
 
@@ -184,7 +252,7 @@ def test_landmarks_3d_fit(sfm):
     assert np.all((b >= 0) & (b <= 1)) and np.isfinite(a).all()
 
     def error(v):
-        return evaluate(_reconstruction(sfm, v, 0.0, 1), scan)[0]["mean_mm"]
+        return evaluate(Reconstruction.from_vertices(sfm, v, 0.0, 1), scan)[0]["mean_mm"]
 
     assert error(sfm.vertices(a, b)) < 0.9 * error(sfm.mean.astype(np.float64))
     c, s = np.cos(0.4), np.sin(0.4)
@@ -194,14 +262,15 @@ def test_landmarks_3d_fit(sfm):
     np.testing.assert_allclose(a2, a, atol=1e-4)
     np.testing.assert_allclose(b2, b, atol=1e-4)
     with pytest.raises(InputError, match="needs the scan"):
-        reconstruct("landmarks-3d", sfm, np.zeros((1, 68, 2)), (64, 64))
+        prepare_methods(["landmarks-3d"], sfm)
 
 
 def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     """ICT holds teeth, gums and eyeballs inside the face: paired with the lips and lids they
     pulled the surface fit far off (3.4 mm on james, worse than the mean face's 2.0). Its
     nostrils' insides, which no scan has, are left out of the comparison too."""
-    from evaluation.florence import _reconstruction, evaluate
+    from evaluation.florence.methods import Reconstruction
+    from evaluation.florence.protocol import evaluate
     from evaluation.landmark_definitions import fit_surface
     from evaluation.scans import outer_skin
 
@@ -215,8 +284,8 @@ def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     assert len(nostrils) > 20 and not outer[nostrils].any()
     assert outer_skin(sfm).all()    # a surface model: every vertex
     a, b = fit_surface(ict, james, iterations=8, expression=True, pose="joint")
-    fit, _ = evaluate(_reconstruction(ict, ict.vertices(a, b), 0.0, 1), james)
-    mean, _ = evaluate(_reconstruction(ict, ict.vertices(), 0.0, 1), james)
+    fit, _ = evaluate(Reconstruction.from_vertices(ict, ict.vertices(a, b), 0.0, 1), james)
+    mean, _ = evaluate(Reconstruction.from_vertices(ict, ict.vertices(), 0.0, 1), james)
     assert fit["mean_mm"] < 0.6 * mean["mean_mm"], (fit, mean)
 
 
@@ -255,7 +324,7 @@ def test_model_scan_with_definition_error(sfm):
 
 def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
     pytest.importorskip("eos")
-    from evaluation.florence import run_model_scans
+    from evaluation.florence.protocol import run_model_scans
 
     conds = ["indoor", "outdoor"]
     report = run_model_scans(ict, sfm, ["ours", "eos", "mean-face"], conds, n_scans=2)
@@ -268,19 +337,21 @@ def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
 
 
 def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
-    from evaluation.florence import reconstruct, video_landmarks
+    from evaluation.florence.methods import Frames, prepare_methods, reconstruct_video
+    from evaluation.florence.protocol import video_landmarks
 
     lm, size, desc, _ = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0)
     assert desc["focal_px"] > 0
-    pinhole = reconstruct("ours", sfm, lm, size, focal_px=desc["focal_px"])
-    affine = reconstruct("ours", sfm, lm, size)
-    forced = reconstruct("ours", sfm, lm, size, {"camera": "affine"}, focal_px=desc["focal_px"])
+    ours = prepare_methods(["ours"], sfm, james)["ours"]
+    pinhole = reconstruct_video(ours, Frames(lm, size, focal_px=desc["focal_px"]))
+    affine = reconstruct_video(ours, Frames(lm, size))
+    forced = reconstruct_video(ours, Frames(lm, size, focal_px=desc["focal_px"]), {"camera": "affine"})
     assert pinhole.info["camera"] == "perspective" and affine.info["camera"] == "affine"
     np.testing.assert_allclose(forced.vertices, affine.vertices)
     assert not np.allclose(pinhole.vertices, affine.vertices)
     # the landmark noise is estimated per video unless the settings give it
     assert pinhole.info["landmark_std_px"] > 0
-    fixed = reconstruct("ours", sfm, lm, size, {"landmark_std_px": 2.0})
+    fixed = reconstruct_video(ours, Frames(lm, size), {"landmark_std_px": 2.0})
     assert fixed.info["landmark_std_px"] == 2.0
     assert desc["detected"] == [False] * 3
 
@@ -291,20 +362,23 @@ def test_detected_frames_get_the_detectors_error(james, sfm):
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
-    from evaluation.florence import reconstruct, video_landmarks
+    from evaluation.florence.methods import Frames, prepare_methods, reconstruct_video
+    from evaluation.florence.protocol import video_landmarks
 
     lm, size, desc, _ = video_landmarks(james, sfm, "indoor", 3, 6, seed=0)
     f = desc["focal_px"]
+    made = prepare_methods(["ours", "ours-independent"], sfm, james)
     for method in ("ours", "ours-independent"):
-        mixed = reconstruct(method, sfm, lm, size, focal_px=f, detected=[True, False, True])
+        mixed = reconstruct_video(made[method], Frames(lm, size, focal_px=f,
+                                                       detected=[True, False, True]))
         same = fit_landmarks(sfm, lm, size, camera="perspective", focal_px=f,
                              landmark_std_px="auto", shared_identity=method == "ours",
                              model_std_mm=[DETECTED_MODEL_STD_MM, MODEL_STD_MM,
                                            DETECTED_MODEL_STD_MM])
         np.testing.assert_allclose(mixed.vertices, same.vertices().mean(0)[mixed.vertex_ids])
-        told = reconstruct(method, sfm, lm, size, {"model_std_mm": MODEL_STD_MM}, focal_px=f,
-                           detected=[True] * 3)
-        plain = reconstruct(method, sfm, lm, size, focal_px=f)
+        told = reconstruct_video(made[method], Frames(lm, size, focal_px=f, detected=[True] * 3),
+                                 {"model_std_mm": MODEL_STD_MM})
+        plain = reconstruct_video(made[method], Frames(lm, size, focal_px=f))
         np.testing.assert_allclose(told.vertices, plain.vertices)
         assert not np.allclose(mixed.vertices, plain.vertices)
 
@@ -478,7 +552,7 @@ def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
 
 def test_detected_landmarks_on_rendered_frames(james, sfm):
     pytest.importorskip("dlib")
-    from evaluation.florence import video_landmarks
+    from evaluation.florence.protocol import video_landmarks
     from evaluation.videos import synthetic_video
 
     lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=True)
@@ -493,7 +567,7 @@ def test_detected_landmarks_on_rendered_frames(james, sfm):
 
 
 def test_detector_error():
-    from evaluation.florence import detector_error
+    from evaluation.florence.protocol import detector_error
 
     truth = np.random.default_rng(0).uniform(0, 100, (3, 68, 2))
     found = truth + [3.0, 4.0]
@@ -507,7 +581,7 @@ def test_detector_error():
 def test_real_frames_folder(james, sfm, tmp_path):
     from PIL import Image
 
-    from evaluation.florence import run_protocol, video_landmarks
+    from evaluation.florence.protocol import run_protocol, video_landmarks
     from evaluation.videos import synthetic_video
     from morphable.io.landmarks import write_pts
 
@@ -546,7 +620,7 @@ def random_gar(tmp_path, monkeypatch):
 
 def test_gar_method_refines_rendered_frames(james, sfm, random_gar):
     """--methods gar: each rendered frame fitted, refined through the GAR, averaged."""
-    from evaluation.florence import run_protocol
+    from evaluation.florence.protocol import run_protocol
 
     report, errors = run_protocol(james, sfm, ["gar", "ours-independent"], ["outdoor"],
                                   n_sampled=2, n_frames=6, efforts={"gar": {"steps": 2}})
@@ -554,13 +628,13 @@ def test_gar_method_refines_rendered_frames(james, sfm, random_gar):
     assert np.isfinite(gar["mean_mm"]) and gar["s_per_frame"] > ours["s_per_frame"]
     # two refinement steps move the per-frame fits only a little
     assert abs(gar["mean_mm"] - ours["mean_mm"]) < 0.5
-    assert np.isfinite(errors["gar/outdoor"]).sum() > 1000
+    assert np.isfinite(error_maps(errors)["gar", "outdoor"].errors).sum() > 1000
 
 
 def test_subjects_wear_a_photos_colours(sfm, data_dir):
     # untextured renders are shaded clay to a detector; a photo's colours give it a face
     pytest.importorskip("dlib")
-    from evaluation.florence import video_landmarks
+    from evaluation.florence.protocol import video_landmarks
     from evaluation.scans import model_scan, photo_colors
     from evaluation.videos import frontal_frame, project_landmarks, synthetic_video
 
