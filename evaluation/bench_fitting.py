@@ -27,8 +27,8 @@ slide along the outline) or ``inner51`` (the 17 jaw points missing as NaN: 51-po
 annotations, detectors that drop the jaw). Faces with |yaw| <= 45, pitch and roll <= 20
 degrees, 1 px noise on 512 px; per setting the median wall ms per fit and the mean 3D error
 of ours and eos side by side, fit-batch images/s with 1 and 2 local workers, and two other
-paths users run in parallel (open3d ray casting of a 512 px visibility map, 10 torch steps of
-the classical refinement), each with its default threads and with one. Nothing here sets
+paths users run in parallel: open3d ray casting of a 512 px visibility map (with Embree's
+default threads and with one) and 10 torch steps of the classical refinement. Nothing here sets
 thread counts through the environment: the library limits BLAS itself
 (:mod:`morphable.threads`), and what a user would see is what is measured::
 
@@ -410,9 +410,9 @@ def _batch_throughput(model, folder, n_items: int = 40) -> dict:
 
 
 def _other_paths(model, repeats: int = 5) -> dict:
-    """Median ms of open3d ray casting (a 512 px visibility map of the mean face) and of 10
-    torch steps of the classical refinement, with each library's default threads and with
-    one thread."""
+    """Median ms of open3d ray casting (a 512 px visibility map of the mean face), with
+    Embree's default threads and with one, and of 10 torch steps of the classical refinement
+    as the library runs them (torch on one thread, :func:`morphable.threads.single_torch_thread`)."""
     out = {}
     try:
         from morphable.camera import Camera
@@ -435,7 +435,7 @@ def _other_paths(model, repeats: int = 5) -> dict:
     except ImportError:
         pass
     try:
-        import torch
+        import torch  # noqa: F401  (the refinement needs it)
 
         from morphable.io.landmarks import read_pts
         from morphable.fitting.detect import read_image
@@ -444,17 +444,13 @@ def _other_paths(model, repeats: int = 5) -> dict:
         image = read_image(DATA / "images" / "image_0010.png")
         fit = fit_landmarks(model, read_pts(DATA / "images" / "image_0010.pts"),
                             image.shape[1::-1])
-        default = torch.get_num_threads()
         refine(image, fit, "classical", steps=2)          # first-call set-up, not timed
-        for label, threads in (("default", default), ("one", 1)):
-            torch.set_num_threads(threads)
-            ms = []
-            for _ in range(max(repeats // 2, 1)):
-                with _Clock() as clock:
-                    refine(image, fit, "classical", steps=10)
-                ms.append(clock.ms)
-            out[f"refine10_ms_{label}_threads"] = float(np.median(ms))
-        torch.set_num_threads(default)
+        ms = []
+        for _ in range(max(repeats // 2, 1)):
+            with _Clock() as clock:
+                refine(image, fit, "classical", steps=10)
+            ms.append(clock.ms)
+        out["refine10_ms"] = float(np.median(ms))
     except ImportError:
         pass
     return out

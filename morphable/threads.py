@@ -8,7 +8,10 @@ fit took 2x as long (``python -m evaluation.bench_fitting --load 1``, docs/fitti
 Users fit in parallel (fit-batch and Dask workers, a notebook beside a training run), so the
 library limits BLAS itself instead of asking for environment variables.
 
-:class:`single_blas_thread` holds BLAS at one thread for the duration of a block or a call.
+:class:`single_blas_thread` holds BLAS at one thread for the duration of a block or a call;
+:class:`single_torch_thread` does the same for torch's intra-op threads, whose refinement of
+a 64 px crop took 17x as long with its default two threads beside two busy processes
+(6.7 s against 0.39 s for 10 steps; ``python -m evaluation.bench_fitting --load 2``).
 It nests and is safe across Python threads (the first to enter sets the limit, the last to
 leave restores what was there). threadpoolctl is imported on first use, so that ``import
 morphable`` stays light; its scan of the loaded libraries (about a millisecond) is redone
@@ -30,7 +33,7 @@ import contextlib
 import sys
 import threading
 
-__all__ = ["single_blas_thread"]
+__all__ = ["single_blas_thread", "single_torch_thread"]
 
 _lock = threading.Lock()
 _depth = 0
@@ -67,4 +70,32 @@ class single_blas_thread(contextlib.ContextDecorator):
             if _depth == 0:
                 _limiter.restore_original_limits()
                 _limiter = None
+        return False
+
+
+_torch_depth = 0
+_torch_threads = None
+
+
+class single_torch_thread(contextlib.ContextDecorator):
+    """Context manager and decorator: torch's intra-op parallelism runs one thread inside
+    (torch is imported on entry). Nests like :class:`single_blas_thread`."""
+
+    def __enter__(self):
+        global _torch_depth, _torch_threads
+        import torch
+
+        with _lock:
+            if _torch_depth == 0:
+                _torch_threads = torch.get_num_threads()
+                torch.set_num_threads(1)
+            _torch_depth += 1
+        return self
+
+    def __exit__(self, *exc):
+        global _torch_depth
+        with _lock:
+            _torch_depth -= 1
+            if _torch_depth == 0:
+                sys.modules["torch"].set_num_threads(_torch_threads)
         return False

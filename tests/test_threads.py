@@ -2,6 +2,7 @@
 import threading
 
 import numpy as np
+import pytest
 from threadpoolctl import threadpool_info
 
 from morphable.threads import single_blas_thread
@@ -59,3 +60,16 @@ def test_fit_landmarks_runs_single_threaded(sfm, monkeypatch):
     monkeypatch.setattr(landmark_fit.np.linalg, "solve", spy)
     landmark_fit.fit_landmarks(sfm, lms, (256, 256), n_iterations=1)
     assert seen and all(s == {1} for s in seen)
+
+
+def test_single_torch_thread_nests_and_restores():
+    torch = pytest.importorskip("torch")
+    from morphable.threads import single_torch_thread
+
+    before = torch.get_num_threads()
+    with single_torch_thread():
+        assert torch.get_num_threads() == 1
+        with single_torch_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before

@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from ..errors import FitError, InputError
+from ..threads import single_blas_thread, single_torch_thread
 from .editing import Refinement
 from .geometry import project_points
 from .loss import loss_function, loss_weights, perceptual_features
@@ -35,6 +36,8 @@ def _renderer(renderer, options):
     return renderer, name
 
 
+@single_blas_thread()
+@single_torch_thread()
 def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0,
            weights: dict | None = None, features=None, resolution: int = 64,
            renderer_options: dict | None = None, seed: int = 0, return_state: bool = False,
