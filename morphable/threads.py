@@ -36,8 +36,6 @@ import threading
 __all__ = ["single_blas_thread", "single_torch_thread"]
 
 _lock = threading.Lock()
-_depth = 0
-_limiter = None
 _controller = None
 _modules_seen = -1
 
@@ -52,50 +50,59 @@ def _blas_controller():
     return _controller
 
 
-class single_blas_thread(contextlib.ContextDecorator):
-    """Context manager and decorator: BLAS (OpenBLAS, MKL, BLIS) runs one thread inside."""
+class _HeldWhileUsed(contextlib.ContextDecorator):
+    """A process-wide setting held while any block that asked for it runs: the first block to
+    enter sets it (``_set`` returns what restores it), the last to leave restores it."""
+
+    _depth = 0
+    _saved = None
 
     def __enter__(self):
-        global _depth, _limiter
+        cls = type(self)
         with _lock:
-            if _depth == 0:
-                _limiter = _blas_controller().limit(limits=1, user_api="blas")
-            _depth += 1
+            if cls._depth == 0:
+                cls._saved = self._set()
+            cls._depth += 1
         return self
 
     def __exit__(self, *exc):
-        global _depth, _limiter
+        cls = type(self)
         with _lock:
-            _depth -= 1
-            if _depth == 0:
-                _limiter.restore_original_limits()
-                _limiter = None
+            cls._depth -= 1
+            if cls._depth == 0:
+                self._restore(cls._saved)
+                cls._saved = None
         return False
 
 
-_torch_depth = 0
-_torch_threads = None
+class single_blas_thread(_HeldWhileUsed):
+    """Context manager and decorator: BLAS (OpenBLAS, MKL, BLIS) runs one thread inside."""
+
+    _depth = 0
+
+    def _set(self):
+        return _blas_controller().limit(limits=1, user_api="blas")
+
+    def _restore(self, limiter):
+        limiter.restore_original_limits()
 
 
-class single_torch_thread(contextlib.ContextDecorator):
+class single_torch_thread(_HeldWhileUsed):
     """Context manager and decorator: torch's intra-op parallelism runs one thread inside
     (torch is imported on entry). Nests like :class:`single_blas_thread`."""
 
+    _depth = 0
+
     def __enter__(self):
-        global _torch_depth, _torch_threads
-        import torch
+        import torch  # noqa: F401  (before the lock: the first import takes seconds)
 
-        with _lock:
-            if _torch_depth == 0:
-                _torch_threads = torch.get_num_threads()
-                torch.set_num_threads(1)
-            _torch_depth += 1
-        return self
+        return super().__enter__()
 
-    def __exit__(self, *exc):
-        global _torch_depth
-        with _lock:
-            _torch_depth -= 1
-            if _torch_depth == 0:
-                sys.modules["torch"].set_num_threads(_torch_threads)
-        return False
+    def _set(self):
+        torch = sys.modules["torch"]
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        return before
+
+    def _restore(self, before):
+        sys.modules["torch"].set_num_threads(before)
