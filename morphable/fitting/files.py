@@ -75,8 +75,8 @@ def read_landmark_file(path, size=None) -> np.ndarray:
     -------
     (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
     """
-    from ..io.landmarks import read_ljson, read_pts
-    from ..landmarks import MENPO_LABELS, from_menpo_labels
+    from ..io.landmark_files import read_ljson, read_pts
+    from ..ibug68 import MENPO_LABELS, from_menpo_labels
 
     path = Path(path)
     if not path.is_file():
