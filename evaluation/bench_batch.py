@@ -52,7 +52,7 @@ def make_synthetic_items(folder, model, n: int, size=(320, 320), seed: int = 0,
 
     from morphable.camera import Camera
     from morphable.fitting import simulate_landmarks
-    from morphable.io.landmarks import write_pts
+    from morphable.io.landmark_files import write_pts
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

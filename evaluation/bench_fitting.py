@@ -56,7 +56,7 @@ from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
 from morphable.fitting.correspondences import (Correspondences, across_outline, outline_points,
                                                slide_contours)
 from morphable.io.atomic import atomic_path
-from morphable.landmarks import JAW
+from morphable.ibug68 import JAW
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -273,7 +273,7 @@ def _print_level(sigma, level):
 
 def image_0010(model, eos_fitter, **fit_kw):
     """Both tools on the real image: landmark RMSE in px (same definition for both)."""
-    from morphable.io.landmarks import read_pts
+    from morphable.io.landmark_files import read_pts
 
     pts = read_pts(DATA / "images" / "image_0010.pts")
     size = (1280, 1024)
@@ -437,7 +437,7 @@ def _other_paths(model, repeats: int = 5) -> dict:
     try:
         import torch  # noqa: F401  (the refinement needs it)
 
-        from morphable.io.landmarks import read_pts
+        from morphable.io.landmark_files import read_pts
         from morphable.fitting.detect import read_image
         from morphable.refinement import refine
 

@@ -76,7 +76,7 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
     from morphable.refinement import refine
     from neural.checkpoint import default_inverter_path, default_no_norm_cycle_path
     from neural.inverter import inverter_from
-    from neural.renderer import GARRenderer
+    from neural.gar_renderer import GARRenderer
 
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter

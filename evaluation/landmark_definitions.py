@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import InputError, one_line_errors
-from morphable.landmarks import DEFINITION_GROUPS
+from morphable.ibug68 import DEFINITION_GROUPS
 
 __all__ = ["fit_surface", "fit_landmarks_3d", "definition_offsets", "group_rms", "main"]
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import InputError
-from morphable.landmarks import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
+from morphable.ibug68 import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
 from morphable.logs import import_open3d
 from morphable.metrics import submesh
 
@@ -121,7 +121,7 @@ def read_scan_landmarks(path) -> np.ndarray:
     labels = None
     try:
         if suffix == ".ljson":
-            from morphable.io.landmarks import read_ljson
+            from morphable.io.landmark_files import read_ljson
 
             pts, labels = read_ljson(path)
         elif suffix == ".npy":

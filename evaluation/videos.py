@@ -27,7 +27,7 @@ import numpy as np
 
 from morphable.camera import Camera
 from morphable.errors import InputError
-from morphable.landmarks import JAW
+from morphable.ibug68 import JAW
 from morphable.logs import import_open3d
 from morphable.metrics import Similarity, align_landmarks
 from morphable.raster.visibility import scene as raycasting_scene

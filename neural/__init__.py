@@ -14,7 +14,7 @@ for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
 - :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``;
 - :mod:`neural.checkpoint` — the committed weights' default paths, loading a network or
   the generator from a checkpoint file, one-line errors;
-- :mod:`neural.renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderers`,
+- :mod:`neural.gar_renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderer_plugins`,
   with its inversion hooks (z from V);
 - :mod:`neural.inverter` — the inverting network V (image -> latent ``z``), its loss and files;
 - :mod:`neural.train_inverter` — ``python -m neural.train_inverter``: V against a frozen GAR.

@@ -343,7 +343,7 @@ class AlignedImageFolder(torch.utils.data.Dataset):
             return np.asarray(img.resize((R, R), Image.Resampling.LANCZOS))
         pts = path.with_suffix(".pts")
         if pts.is_file():
-            from morphable.io.landmarks import read_pts
+            from morphable.io.landmark_files import read_pts
 
             lm = read_pts(pts)
         else:

@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     configure(verbosity(args))
     if args.threads:
         torch.set_num_threads(args.threads)
-    from .renderer import GARRenderer
+    from .gar_renderer import GARRenderer
 
     r = GARRenderer(weights=args.generator) if args.generator else GARRenderer()
     G = r.generator

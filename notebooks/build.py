@@ -55,7 +55,7 @@ morphable fit ../shared/data/images/image_0010.png --out-mesh fit.obj --report f
 from PIL import Image
 
 from morphable.fitting import detect_landmarks
-from morphable.io.landmarks import read_pts
+from morphable.io.landmark_files import read_pts
 
 photo_path = DATA / "images" / "image_0010.png"
 photo = np.asarray(Image.open(photo_path).convert("RGB"))
@@ -115,7 +115,7 @@ print(OUT / "fit.obj", mesh.vertices.shape, "vertices, extent (mm):", mesh.exten
                           "`--screenshot` renders off-screen (here, and on machines without a display)."),
         new_code_cell('''\
 try:
-    from morphable.viz import show_mesh
+    from morphable.viewer import show_mesh
 except ImportError:  # the viz extra is missing
     show_mesh = None
 if show_mesh is not None:
@@ -194,7 +194,7 @@ print(f"median {np.nanmedian(e):.2f} mm, 95th percentile {np.nanpercentile(e, 95
                           "`--errors`."),
         new_code_cell('''\
 try:
-    from morphable.viz import show_mesh
+    from morphable.viewer import show_mesh
 except ImportError:
     show_mesh = None
 if show_mesh is not None:
@@ -338,7 +338,7 @@ here to keep the notebook quick; the CLI default is 100."""),
 from PIL import Image
 
 from morphable.fitting import fit_landmarks
-from morphable.io.landmarks import read_pts
+from morphable.io.landmark_files import read_pts
 from morphable.refinement import edit, refine
 
 photo_path = DATA / "images" / "image_0010.png"

@@ -52,7 +52,7 @@ def _png_header(w, h):
 def make_fixtures(d: Path) -> None:
     from PIL import Image
 
-    from morphable.io.landmarks import read_pts, write_pts
+    from morphable.io.landmark_files import read_pts, write_pts
 
     face_png, face_pts = DATA / "images" / "image_0010.png", DATA / "images" / "image_0010.pts"
     (d / "truncated.bin").write_bytes((DATA / "models/sfm/sfm_shape_3448.bin").read_bytes()[:1000])

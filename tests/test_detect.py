@@ -14,7 +14,7 @@ def takeo(data_dir):
 
 def test_detected_landmarks_match_the_annotation(takeo):
     from morphable.fitting.detect import detect_faces, detect_landmarks
-    from morphable.io.landmarks import read_pts
+    from morphable.io.landmark_files import read_pts
 
     boxes = detect_faces(takeo)
     assert boxes.shape[1] == 4 and len(boxes) >= 1

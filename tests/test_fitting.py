@@ -488,6 +488,37 @@ def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir):
     assert 0 < json.loads(report.read_text())["frames"][0]["landmark_std_px"] < 10
 
 
+def test_fit_settings_have_one_name_in_the_api_cli_and_batch_options(tmp_path, data_dir, sfm):
+    """``--n-iterations``, ``--robust huber`` and ``--focal-px`` are the keywords
+    ``n_iterations``, ``robust`` and ``focal_px`` of the fit, of ``fit_files`` and of a
+    fit-batch item's options, and give the same fit."""
+    from morphable.batch import BatchItem
+    from morphable.cli import main
+    from morphable.fitting.files import fit_files, fit_item
+
+    img = data_dir / "images" / "image_0010.png"
+    pts = data_dir / "images" / "image_0010.pts"
+    settings = dict(camera="perspective", focal_px=900.0, n_iterations=1, robust="huber")
+    report = tmp_path / "fit.json"
+    assert main(["fit", str(img), "--landmarks", str(pts), "--report", str(report),
+                 "--camera", "perspective", "--focal-px", "900", "--n-iterations", "1",
+                 "--robust", "huber"]) == 0
+    cli = json.loads(report.read_text())
+    api, _ = fit_files([img], [pts], model=sfm, **settings)
+    folder = tmp_path / "item"
+    folder.mkdir()
+    fit_item(BatchItem("a", [str(img)], [str(pts)]), folder, {"model": "sfm", **settings})
+    batch = json.loads((folder / "fit.json").read_text())
+    for rep in (cli, batch):
+        assert rep["iterations"] == api.iterations == 1
+        assert rep["frames"][0]["focal_px"] == 900.0
+        np.testing.assert_allclose(rep["identity"], api.identity, atol=1e-9)
+    plain, _ = fit_files([img], [pts], model=sfm, **{**settings, "robust": None})
+    assert not np.allclose(plain.identity, api.identity)  # robust="huber" took effect
+    with pytest.raises(InputError, match="robust"):
+        fit_files([img], [pts], model=sfm, robust=True)
+
+
 def test_cli_fit_bad_input_writes_nothing(tmp_path, data_dir, capsys):
     from morphable.cli import main
 

@@ -544,7 +544,7 @@ def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
     assert all(p["s_per_video"] > 0 and abs(p["mean_mm"] - start["mean_mm"]) < 0.5
                for p in gar.values())
     # without the neural plugin: a one-line error before any video is made
-    monkeypatch.setitem(sys.modules, "neural.renderer", None)
+    monkeypatch.setitem(sys.modules, "neural.gar_renderer", None)
     monkeypatch.setattr(report, "video_landmarks", lambda *a, **k: pytest.fail("rendered"))
     with pytest.raises(InputError, match="neural plugin is not installed"):
         report.run(james, sfm, ["ours-independent", "gar"], ["outdoor"], video_frames=6)
@@ -583,7 +583,7 @@ def test_real_frames_folder(james, sfm, tmp_path):
 
     from evaluation.florence.protocol import run_protocol, video_landmarks
     from evaluation.videos import synthetic_video
-    from morphable.io.landmarks import write_pts
+    from morphable.io.landmark_files import write_pts
 
     video = synthetic_video(james, "indoor", sfm.landmark_positions(), n_frames=6, n_sampled=6, seed=1)
     folder = tmp_path / "james" / "indoor"

@@ -11,7 +11,7 @@ from morphable.io.eos import read_eos_blendshapes, read_eos_model
 from morphable.io.ict import load_ict_folder
 from morphable.io.native import load_model_npz, save_model_npz
 from morphable.io.registry import download, find_model, search_path
-from morphable.landmarks import from_menpo_labels
+from morphable.ibug68 import from_menpo_labels
 
 
 # --- eos ------------------------------------------------------------------------------

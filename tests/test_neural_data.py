@@ -81,7 +81,7 @@ def test_template_and_similarity(data_dir):
 def test_align_real_photo(data_dir, tmp_path):
     from PIL import Image
 
-    from morphable.io.landmarks import read_pts
+    from morphable.io.landmark_files import read_pts
 
     img = Image.open(data_dir / "images" / "image_0010.png").convert("RGB")
     pts = read_pts(data_dir / "images" / "image_0010.pts")

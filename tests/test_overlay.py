@@ -18,7 +18,7 @@ SCALE = 4  # image_0010 (1280x1024) shrunk to 320x256 keeps the tests fast
 def photo_fit(data_dir, tmp_path_factory):
     from morphable import load_model
     from morphable.fitting import fit_landmarks
-    from morphable.io.landmarks import read_pts, write_pts
+    from morphable.io.landmark_files import read_pts, write_pts
 
     d = data_dir / "images"
     with Image.open(d / "image_0010.png") as im:

@@ -15,7 +15,7 @@ from neural.config import get_config  # noqa: E402
 from neural.gar import Generator  # noqa: E402
 from neural.gar import pixel_norm  # noqa: E402
 from neural.inverter import Inverter, inverter_loss, load_inverter, save_inverter  # noqa: E402
-from neural.renderer import GARRenderer  # noqa: E402
+from neural.gar_renderer import GARRenderer  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -62,7 +62,8 @@ def _parser():
     p.add_argument("--detect", action="store_true",
                    help="landmarks from dlib on rendered frames instead of projected scan landmarks")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
-    p.add_argument("--iterations", type=int, help="iterations of ours (default: the fitter's)")
+    p.add_argument("--n-iterations", type=int,
+                   help="nonlinear iterations of ours (default: the fitter's)")
     p.add_argument("--definition-std", type=float,
                    help="ours: landmark definition error, mm, for every landmark (default: the "
                         "fitter's per-landmark profile)")
@@ -139,7 +140,7 @@ def main(argv=None) -> int:
         raise InputError("--expression-std applies to --synthetic-scan")
     else:
         scan = load_scan(args.scan, args.scan_landmarks, args.scan_units)
-    ours = {k: v for k, v in (("n_iterations", args.iterations),
+    ours = {k: v for k, v in (("n_iterations", args.n_iterations),
                               ("definition_std_mm", args.definition_std),
                               ("model_std_mm", args.model_std),
                               ("expression_weight", args.expression_weight),

@@ -279,7 +279,7 @@ def gar_refiner():
     """:func:`morphable.refinement.refine_frames`, or a one-line InputError when the neural
     plugin (the gar renderer) is not installed (callers check before a long run)."""
     try:
-        import neural.renderer  # noqa: F401
+        import neural.gar_renderer  # noqa: F401
     except ImportError as e:
         raise InputError(f"method gar: the neural plugin is not installed ({e}); "
                          "pip install -e '.[neural]'") from None
@@ -306,7 +306,7 @@ class Gar(Method):
         if self.renderer is None:          # outside the timed fits (as eos' model)
             import torch
 
-            from morphable.renderers import get_renderer
+            from morphable.renderer_plugins import get_renderer
 
             self.renderer = get_renderer("gar")
             # torch's first optimizer imports its compiler (about 1 s): not part of a fit

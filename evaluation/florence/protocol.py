@@ -126,7 +126,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
     frames without a ``.pts`` whose landmarks dlib detected)."""
     from PIL import Image
 
-    from morphable.io.landmarks import read_pts
+    from morphable.io.landmark_files import read_pts
 
     d = folder / condition
     frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))

@@ -13,10 +13,12 @@ def add_model_argument(parser) -> None:
 def add_fitting_arguments(parser) -> None:
     """The landmark-fitting options shared by ``fit`` and ``fit-batch``."""
     parser.add_argument("--camera", choices=("affine", "perspective"), default="affine")
-    parser.add_argument("--focal", type=float, default=None,
+    parser.add_argument("--focal-px", type=float, default=None,
                         help="focal length in px (perspective; default max(W, H))")
-    parser.add_argument("--iterations", type=int, default=4, help="nonlinear iterations (default 4)")
-    parser.add_argument("--robust", action="store_true", help="Huber loss against outlying landmarks")
+    parser.add_argument("--n-iterations", type=int, default=4,
+                        help="nonlinear iterations (default 4)")
+    parser.add_argument("--robust", choices=("huber",), default=None,
+                        help="huber: Huber loss against outlying landmarks (default: least squares)")
     parser.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
                         help="landmark noise in px, or auto: estimated from the fit (default 1)")
     parser.add_argument("--detector", choices=("hog", "cnn"), default="hog",

@@ -54,15 +54,15 @@ def run(args):
             raise InputError(f"{out}: folder {Path(out).resolve().parent} does not exist")
     if args.landmarks and len(args.landmarks) != len(args.images):
         raise InputError(f"--landmarks: {len(args.landmarks)} files for {len(args.images)} images")
-    if args.iterations < 0:
-        raise InputError(f"--iterations must be >= 0, got {args.iterations}")
+    if args.n_iterations < 0:
+        raise InputError(f"--n-iterations must be >= 0, got {args.n_iterations}")
     if args.steps < 0:
         raise InputError(f"--steps must be >= 0, got {args.steps}")
     if args.refine_render and not args.refine:
         raise InputError("--refine-render needs --refine")
     images = [Path(p) for p in args.images]
     res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
-                            focal_px=args.focal, n_iterations=args.iterations, robust=args.robust,
+                            focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
                             shared_identity=not args.independent, detector=args.detector,
                             landmark_std_px=args.landmark_std)
     if args.refine:

@@ -38,10 +38,10 @@ def run(args):
 
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
-    if args.iterations < 0:
-        raise InputError(f"--iterations must be >= 0, got {args.iterations}")
-    if args.focal is not None and not args.focal > 0:
-        raise InputError(f"--focal must be positive, got {args.focal}")
+    if args.n_iterations < 0:
+        raise InputError(f"--n-iterations must be >= 0, got {args.n_iterations}")
+    if args.focal_px is not None and not args.focal_px > 0:
+        raise InputError(f"--focal-px must be positive, got {args.focal_px}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
@@ -53,8 +53,8 @@ def run(args):
         it.images = [str(Path(x).absolute()) for x in it.images]
         it.landmarks = [None if x is None else str(Path(x).absolute()) for x in it.landmarks]
     load_model(args.model)  # an unknown model fails here, once, not in every item
-    options = {"model": args.model, "camera": args.camera, "focal_px": args.focal,
-               "iterations": args.iterations, "robust": args.robust,
+    options = {"model": args.model, "camera": args.camera, "focal_px": args.focal_px,
+               "n_iterations": args.n_iterations, "robust": args.robust,
                "independent": args.independent, "detector": args.detector,
                "landmark_std_px": args.landmark_std,
                "mesh_format": args.mesh_format}

@@ -67,7 +67,7 @@ def _errors(spec: str, n: int) -> np.ndarray:
 
 
 def run(args):
-    from ..viz import parse_size, show_mesh
+    from ..viewer import parse_size, show_mesh
 
     size = parse_size(args.size)
     path = Path(args.mesh)

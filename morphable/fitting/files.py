@@ -75,8 +75,8 @@ def read_landmark_file(path, size=None) -> np.ndarray:
     -------
     (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
     """
-    from ..io.landmarks import read_ljson, read_pts
-    from ..landmarks import MENPO_LABELS, from_menpo_labels
+    from ..io.landmark_files import read_ljson, read_pts
+    from ..ibug68 import MENPO_LABELS, from_menpo_labels
 
     path = Path(path)
     if not path.is_file():
@@ -115,7 +115,7 @@ def _detect(path, size, detector: str):
 
 
 def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
-              n_iterations: int = 4, robust: bool = False, shared_identity: bool = True,
+              n_iterations: int = 4, robust=None, shared_identity: bool = True,
               detector: str = "hog", landmark_std_px=1.0):
     """Fit a model to one or more images of a person, from landmark files or dlib detection.
 
@@ -125,7 +125,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     landmarks : list of paths or None (one per image; a None entry is detected)
     model : MorphableModel or name/path for ``load_model``
     camera, focal_px, n_iterations, landmark_std_px : see :func:`morphable.fitting.fit_landmarks`
-    robust : bool, Huber loss
+    robust : None or "huber" (see :func:`morphable.fitting.fit_landmarks`)
     shared_identity : bool, one identity for all images (False: independent fits)
     detector : "hog" or "cnn" (dlib)
 
@@ -147,7 +147,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     if len(landmarks) != len(images):
         raise InputError(f"landmarks: {len(landmarks)} files for {len(images)} images")
     if int(n_iterations) < 0:
-        raise InputError(f"iterations must be >= 0, got {n_iterations}")
+        raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
     sizes = [image_size(p) for p in images]
     lms = [read_landmark_file(lm, s) if lm else _detect(p, s, detector)
            for p, lm, s in zip(images, landmarks, sizes)]
@@ -158,7 +158,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     model_std = frame_model_std([not lm for lm in landmarks])
     res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
-                        robust="huber" if robust else None, shared_identity=shared_identity,
+                        robust=robust, shared_identity=shared_identity,
                         landmark_std_px=landmark_std_px, model_std_mm=model_std)
     report = res.to_dict(images=[str(p) for p in images])
     report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
@@ -192,7 +192,7 @@ def fit_item(item, folder, options: dict) -> dict:
     """Work function of ``morphable fit-batch``: fit one :class:`~morphable.batch.BatchItem`
     (all its images together) and write ``fit.obj`` and ``fit.json`` into ``folder``.
 
-    ``options``: ``model``, ``camera``, ``focal_px``, ``iterations``, ``robust``, ``independent``,
+    ``options``: ``model``, ``camera``, ``focal_px``, ``n_iterations``, ``robust``, ``independent``,
     ``detector``, ``landmark_std_px``, ``mesh_format`` (suffix, default ``obj``).
 
     Returns a summary for the results log: n_frames, landmark RMSE (px, per frame and mean),
@@ -201,8 +201,8 @@ def fit_item(item, folder, options: dict) -> dict:
     folder = Path(folder)
     res, report = fit_files(item.images, item.landmarks or None,
                             model=options.get("model", "sfm"), camera=options.get("camera", "affine"),
-                            focal_px=options.get("focal_px"), n_iterations=options.get("iterations", 4),
-                            robust=options.get("robust", False),
+                            focal_px=options.get("focal_px"), n_iterations=options.get("n_iterations", 4),
+                            robust=options.get("robust"),
                             shared_identity=not options.get("independent", False),
                             detector=options.get("detector", "hog"),
                             landmark_std_px=options.get("landmark_std_px", 1.0))

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..landmarks import DEFINITION_GROUPS
+from ..ibug68 import DEFINITION_GROUPS
 
 __all__ = ["DEFINITION_STD_MM", "MODEL_STD_MM", "DETECTED_MODEL_STD_MM", "BLENDSHAPES_REF",
            "expression_precision", "frame_model_std", "model_variance", "weights"]

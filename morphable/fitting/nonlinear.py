@@ -22,8 +22,8 @@ from .sliding import slide
 __all__ = ["lm_stage", "normal_equations"]
 
 
-def lm_stage(pb: Problem, st: State, n_iter: int, slide_every: int = 2):
-    """Up to ``n_iter`` Levenberg-Marquardt iterations from ``st``, re-picking the jaw
+def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
+    """Up to ``n_iterations`` Levenberg-Marquardt iterations from ``st``, re-picking the jaw
     correspondences every ``slide_every``-th -> (state, iterations run)."""
     N, K, E = pb.N, pb.K, pb.E
     G = 1 if pb.shared else N
@@ -36,7 +36,7 @@ def lm_stage(pb: Problem, st: State, n_iter: int, slide_every: int = 2):
     # a group that has converged stops moving, so that fitting frames together or alone
     # gives the same result
     active = np.ones(G, bool)
-    for it in range(n_iter):
+    for it in range(n_iterations):
         if it % slide_every == 0 and it:
             slide(pb, st)
         Hff, gf, Hfa, Haa, ga, W, _, cost0 = normal_equations(pb, st)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FitError, InputError
-from ..landmarks import as_landmarks
+from ..ibug68 import as_landmarks
 from .noise import expression_precision
 from .options import FitOptions
 from .rows import basis_rows, fixed_gram, size_direction

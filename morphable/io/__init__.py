@@ -1,6 +1,6 @@
 """Readers and writers: models (eos, ICT, BFM, FLAME, native npz), landmarks, meshes."""
 from .atomic import atomic_path
-from .landmarks import read_ljson, read_pts, write_ljson, write_pts
+from .landmark_files import read_ljson, read_pts, write_ljson, write_pts
 from .mesh import read_mesh, write_mesh
 from .native import load_model_npz, save_model_npz
 

@@ -21,7 +21,7 @@ from .framing import frame_mesh
 from .interpolate import interpolate
 from .normal_maps import normal_map, sample_normals, tangent_frames, uv_layout, uv_normal_map
 from .png import read_depth_png, save_depth_png, save_image_png, save_mask_png, save_normal_png
-from .render import render
+from .shaded_images import render
 from .shading import (DirectionalLight, sh_basis, sh_from_lights, shade_directional, shade_sh,
                       shade_sh_torch)
 from .texture import as_texture, sample_texture

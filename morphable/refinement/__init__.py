@@ -12,7 +12,7 @@ expression beta, camera pose theta), the steps, each usable alone:
    in the coefficients (:meth:`morphable.MorphableModel.vertices` on torch tensors) and a
    pose increment (axis-angle) through :func:`morphable.raster.normal_map`;
 3. :func:`~.problem.start`: the geometry starts at the fit, the appearance where the
-   renderer's ``initial_appearance`` hook puts it (:class:`morphable.renderers.RendererBase`:
+   renderer's ``initial_appearance`` hook puts it (:class:`morphable.renderer_plugins.RendererBase`:
    for ``gar`` ``z <- V(crop)`` when its inverter is available, ``eps <- 0``; for
    ``classical`` albedo = mean colour of the face pixels and a uniform white SH environment);
 4. :func:`refine` (:mod:`.inversion`): Adam over alpha, beta, theta (+ a translation offset)

@@ -25,14 +25,14 @@ LEARNING_RATES = {"alpha": 0.03, "beta": 0.02, "rot": 0.003, "trans": 0.3}
 
 def _renderer(renderer, options):
     """A renderer object and its name for the report."""
-    from ..renderers import RendererBase, get_renderer
+    from ..renderer_plugins import RendererBase, get_renderer
 
     name = renderer if isinstance(renderer, str) else type(renderer).__name__
     if isinstance(renderer, str):
         renderer = get_renderer(renderer, **(options or {}))
     if not isinstance(renderer, RendererBase):
         raise InputError(f"renderer {name!r}: inverting it needs the hooks of "
-                         "morphable.renderers.RendererBase (derive from it)")
+                         "morphable.renderer_plugins.RendererBase (derive from it)")
     return renderer, name
 
 
@@ -48,7 +48,7 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
     ----------
     image : (H, W, 3) uint8 or float [0, 1], the image of ``fit``'s frame ``frame``
     fit : FitResult of :func:`morphable.fitting.fit_landmarks`
-    renderer : a renderer name ("classical", "gar") or object (:mod:`morphable.renderers`;
+    renderer : a renderer name ("classical", "gar") or object (:mod:`morphable.renderer_plugins`;
         the gar renderer's options include its inverter V, ``inverter=``)
     steps : Adam iterations
     weights : overrides of :data:`~morphable.refinement.DEFAULT_WEIGHTS`

@@ -58,7 +58,7 @@ def perceptual_features(features, renderer):
     ``features``: None (the renderer's ``feature_network``, else the first an installed
     renderer plugin offers, else none), a callable, or the path of a TorchScript network."""
     if features is None:
-        from ..renderers import plugin_feature_network
+        from ..renderer_plugins import plugin_feature_network
 
         return renderer.feature_network() or plugin_feature_network() or (None, "none")
     if callable(features):

@@ -6,7 +6,7 @@ torch = pytest.importorskip("torch")
 
 from morphable.errors import InputError  # noqa: E402
 from morphable.raster import DirectionalLight, sh_from_lights  # noqa: E402
-from morphable.renderers import Renderer, available_renderers, get_renderer  # noqa: E402
+from morphable.renderer_plugins import Renderer, available_renderers, get_renderer  # noqa: E402
 
 
 def sphere_normals(size=48):
@@ -64,7 +64,7 @@ def test_classical_is_differentiable():
 
 
 def test_gar_needs_weights(monkeypatch, tmp_path):
-    import neural.renderer as nr
+    import neural.gar_renderer as nr
     from neural.checkpoint import WEIGHTS_ENV
 
     monkeypatch.setenv(WEIGHTS_ENV, str(tmp_path / "missing.pt"))
@@ -89,7 +89,7 @@ def test_gar_needs_weights(monkeypatch, tmp_path):
 def test_inversion_hooks():
     """What refinement asks a renderer: the start, the pixels compared, the prior, the
     constraint and the features; the defaults for a renderer that says nothing."""
-    from morphable.renderers import RendererBase, plugin_feature_network
+    from morphable.renderer_plugins import RendererBase, plugin_feature_network
     from neural.inverter import Inverter
 
     image = torch.rand(1, 3, 64, 64)
@@ -135,7 +135,7 @@ def test_import_does_not_load_torch():
     import subprocess
     import sys
 
-    code = ("import sys, morphable, morphable.renderers; "
-            "print('torch' in sys.modules, morphable.renderers.available_renderers())")
+    code = ("import sys, morphable, morphable.renderer_plugins; "
+            "print('torch' in sys.modules, morphable.renderer_plugins.available_renderers())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.startswith("False")

@@ -8,7 +8,7 @@ pytest.importorskip("pyvista")
 from PIL import Image  # noqa: E402
 
 from morphable import InputError  # noqa: E402
-from morphable.viz import parse_size, show_mesh  # noqa: E402
+from morphable.viewer import parse_size, show_mesh  # noqa: E402
 
 
 def _foreground(path):

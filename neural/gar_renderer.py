@@ -1,5 +1,5 @@
 """The ``gar`` renderer plugin: the Generative Adversarial Renderer behind the interface of
-:mod:`morphable.renderers` (entry point ``morphable.renderers: gar``), with its inversion
+:mod:`morphable.renderer_plugins` (entry point ``morphable.renderers: gar``), with its inversion
 hooks.
 
 Weights: ``weights=`` (a ``generator.pt`` / ``checkpoint.pt`` of :mod:`neural.train`), else
@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 from morphable.errors import InputError
-from morphable.renderers import RendererBase
+from morphable.renderer_plugins import RendererBase
 
 from .checkpoint import WEIGHTS_ENV, default_generator_path, load_generator
 from .config import get_config
@@ -84,7 +84,7 @@ class GARRenderer(RendererBase):
         img = self.generator(normal_map.float(), appearance["z"], noise=appearance.get("noise"))
         return ((img + 1) / 2).clamp(0, 1)
 
-    # --- inversion hooks (morphable.renderers.RendererBase) ---------------------------
+    # --- inversion hooks (morphable.renderer_plugins.RendererBase) ---------------------------
     def initial_appearance(self, image, coverage, seed: int = 0) -> tuple[dict, str]:
         """``z`` = V's latent of ``image`` (1, 3, R, R) in [0, 1] (its prior part drawn with
         ``seed``) when the renderer has an inverter, else the default one; ``noise`` zero.

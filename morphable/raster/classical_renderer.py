@@ -1,7 +1,7 @@
 """The ``classical`` renderer plugin: Lambertian shading of a normal map under a 9-coefficient
 spherical-harmonics environment with a uniform albedo, in torch (differentiable).
 
-It implements the interface of :mod:`morphable.renderers` (with its inversion hooks) and is
+It implements the interface of :mod:`morphable.renderer_plugins` (with its inversion hooks) and is
 registered under the entry point ``morphable.renderers: classical``. torch loads when a
 renderer renders.
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..renderers import RendererBase
+from ..renderer_plugins import RendererBase
 from .shading import DirectionalLight, sh_from_lights, shade_sh
 
 __all__ = ["ClassicalRenderer"]
