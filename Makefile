@@ -24,6 +24,8 @@ $(STAMP): setup.cfg pyproject.toml | system-deps
 	$(BIN)/python -m pip install -q --upgrade pip setuptools wheel
 	# the local CPU build first, so that the neural extra (torch>=2.2) never pulls CUDA wheels
 	$(BIN)/python -m pip install -q torch==2.13.0
+	# an egg-info left in the tree by an earlier build shadows the installed entry points
+	rm -rf morphable.egg-info
 	$(BIN)/python -m pip install -q -e '.[all,dev]'
 	touch $@
 

@@ -24,7 +24,7 @@ Reconstruction by inverting a renderer and editing are the core's
 (:mod:`evaluation.gar_quality`, :mod:`evaluation.gar_ablation`).
 
 This package needs torch (``pip install morphable[neural]``); ``morphable`` itself never
-imports it: it finds the renderer through the ``morphable.renderers`` entry point. Images are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W)
-unit vectors in the camera frame (x right, y up, z towards the viewer) and zero outside
-the face.
+imports it: it finds the renderer through the ``morphable.renderers`` entry point. Images
+are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W) unit vectors in
+the camera frame (x right, y up, z towards the viewer) and zero outside the face.
 """
