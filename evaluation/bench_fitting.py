@@ -59,8 +59,9 @@ from morphable.io.atomic import atomic_path
 from morphable.ibug68 import JAW
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
+from .peers import EosFitter, eos_projection
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-SFM = DATA / "models" / "sfm"
 IMAGE = 512
 NOISE = (0.0, 1.0, 3.0)
 YAW_BINS = (0, 20, 40, 60, 80.001)
@@ -98,44 +99,11 @@ def make_sample(model, rng, max_yaw: float = 80.0, max_tilt: float = 30.0):
 
 
 # --- eos ----------------------------------------------------------------------------------
-class EosFitter:
-    """eos-py's fit_shape_and_pose with the SFM files from the shared data folder."""
-
-    def __init__(self):
-        import eos
-
-        self.eos = eos
-        shape = eos.morphablemodel.load_model(str(SFM / "sfm_shape_3448.bin"))
-        blend = eos.morphablemodel.load_blendshapes(str(SFM / "expression_blendshapes_3448.bin"))
-        self.model = eos.morphablemodel.MorphableModel(
-            shape.get_shape_model(), blend, color_model=eos.morphablemodel.PcaModel(),
-            vertex_definitions=None, texture_coordinates=shape.get_texture_coordinates())
-        self.mapper = eos.core.LandmarkMapper(str(SFM / "ibug_to_sfm.txt"))
-        self.edges = eos.morphablemodel.load_edge_topology(str(SFM / "sfm_3448_edge_topology.json"))
-        self.contour_lms = eos.fitting.ContourLandmarks.load(str(SFM / "ibug_to_sfm.txt"))
-        self.contour = eos.fitting.ModelContour.load(str(SFM / "sfm_model_contours.json"))
-
-    def fit(self, landmarks, image_size):
-        eos = self.eos
-        lms = [eos.core.Landmark(str(i + 1), p.astype(np.float32))
-               for i, p in enumerate(landmarks) if np.isfinite(p).all()]
-        W, H = image_size
-        mesh, rp, alpha, beta = eos.fitting.fit_shape_and_pose(
-            self.model, lms, self.mapper, W, H, self.edges, self.contour_lms, self.contour)
-        verts = np.asarray(mesh.vertices, dtype=np.float64)
-        rotation = np.asarray(rp.get_modelview(), dtype=np.float64)[:3, :3]
-        return verts, self.projector(rp, W, H), rotation
-
-    @staticmethod
-    def projector(rp, W, H):
-        """World points -> pixels with eos' modelview, ortho projection and (flipped) viewport."""
-        MV = np.asarray(rp.get_modelview(), dtype=np.float64)
-        P = np.asarray(rp.get_projection(), dtype=np.float64)
-
-        def project(X):
-            Xh = np.c_[X, np.ones(len(X))] @ (P @ MV).T
-            return np.c_[(Xh[:, 0] + 1) / 2 * W, H - (Xh[:, 1] + 1) / 2 * H]
-        return project
+def eos_fit(fitter, landmarks, image_size):
+    """eos' fit of (68, 2) px landmarks: vertices (V, 3) mm, its projection and rotation."""
+    verts, pose = fitter.fit_with_pose(landmarks, image_size)
+    rotation, project = eos_projection(pose, image_size)
+    return verts, project, rotation
 
 
 def landmark_rmse(model, rotation, project, verts, landmarks):
@@ -221,7 +189,7 @@ def run(n, seed=0, sweep_n=100, out=Path("reports/bench_fitting.json"), eos_on=T
             if eos_fitter is not None:
                 try:
                     with _Clock() as clock:
-                        v, proj, rot = eos_fitter.fit(lms[i], (IMAGE, IMAGE))
+                        v, proj, rot = eos_fit(eos_fitter, lms[i], (IMAGE, IMAGE))
                     per["eos"].append(_record(model, v, rot, proj, s["verts"], lms[i], clock.ms,
                                               clock.cpu_ms))
                 except Exception as e:
@@ -294,7 +262,7 @@ def image_0010(model, eos_fitter, **fit_kw):
         clocks = []
         for _ in range(5):
             with _Clock() as clock:
-                v, proj, rot = eos_fitter.fit(pts, size)
+                v, proj, rot = eos_fit(eos_fitter, pts, size)
             clocks.append(clock)
         rmse, inner = landmark_rmse(model, rot, proj, v, pts)
         out["eos"] = {"landmark_rmse_px": rmse, "inner_rmse_px": inner,
@@ -332,7 +300,7 @@ def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
         errs, times, cpu = [], [], []
         for i, s in enumerate(samples):
             with _Clock() as clock:
-                v, _, _ = eos_fitter.fit(lms[i], (IMAGE, IMAGE))
+                v, _, _ = eos_fit(eos_fitter, lms[i], (IMAGE, IMAGE))
             times.append(clock.ms)
             cpu.append(clock.cpu_ms)
             errs.append(similarity_error(v, s["verts"]))
@@ -386,7 +354,7 @@ def _fit_rows(model, eos_fitter, samples, names):
             per["ours"].append((clock.ms, clock.cpu_ms, similarity_error(res.vertices(0), s["verts"])))
             if eos_fitter is not None:
                 with _Clock() as clock:
-                    verts, _, _ = eos_fitter.fit(lms, (IMAGE, IMAGE))
+                    verts, _, _ = eos_fit(eos_fitter, lms, (IMAGE, IMAGE))
                 per["eos"].append((clock.ms, clock.cpu_ms, similarity_error(verts, s["verts"])))
         rows[name] = {tool: {"ms_per_fit_median": float(np.median([r[0] for r in recs])),
                              "cpu_ms_per_fit_median": float(np.median([r[1] for r in recs])),

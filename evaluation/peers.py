@@ -12,7 +12,7 @@ import numpy as np
 
 from morphable.errors import FitError, InputError
 
-__all__ = ["EosFitter"]
+__all__ = ["EosFitter", "eos_projection"]
 
 
 class EosFitter:
@@ -52,6 +52,11 @@ class EosFitter:
 
     def fit_one(self, landmarks, image_size) -> np.ndarray:
         """(68, 2) px (NaN = missing) -> (V, 3) mm vertices in the model frame."""
+        return self.fit_with_pose(landmarks, image_size)[0]
+
+    def fit_with_pose(self, landmarks, image_size):
+        """(68, 2) px (NaN = missing) -> (V, 3) mm vertices in the model frame and eos'
+        ``RenderingParameters`` (its camera: :func:`eos_projection`)."""
         eos = self.eos
         lm = np.asarray(landmarks, dtype=np.float64)
         pts = [eos.core.Landmark(str(i + 1), [float(x), float(y)])
@@ -59,13 +64,13 @@ class EosFitter:
         if len(pts) < 6:
             raise FitError(f"eos needs at least 6 landmarks, got {len(pts)}")
         W, H = (int(s) for s in image_size)
-        mesh, _pose, _shape, _expr = eos.fitting.fit_shape_and_pose(
+        mesh, pose, _shape, _expr = eos.fitting.fit_shape_and_pose(
             self.model, pts, self.mapper, W, H, self.edges, self.contour_lm, self.contour,
             num_iterations=self.num_iterations, lambda_identity=self.lambda_identity)
         v = np.asarray(mesh.vertices, dtype=np.float64)
         if not np.isfinite(v).all():
             raise FitError("eos returned non-finite vertices")
-        return v
+        return v, pose
 
     def fit(self, landmarks, image_size) -> np.ndarray:
         """(N, 68, 2) px -> (N, V, 3) mm, one independent fit per image."""
@@ -95,3 +100,16 @@ def _load(folder: str):
     contour_lm = eos.fitting.ContourLandmarks.load(str(f / need[2]))
     contour = eos.fitting.ModelContour.load(str(f / need[3]))
     return model, mapper, edges, contour_lm, contour
+
+
+def eos_projection(pose, image_size):
+    """eos' camera of a fit: its rotation (3, 3) and a function world points (n, 3) mm ->
+    pixels (n, 2) through its modelview, orthographic projection and (flipped) viewport."""
+    W, H = image_size
+    MV = np.asarray(pose.get_modelview(), dtype=np.float64)
+    P = np.asarray(pose.get_projection(), dtype=np.float64)
+
+    def project(X):
+        Xh = np.c_[X, np.ones(len(X))] @ (P @ MV).T
+        return np.c_[(Xh[:, 0] + 1) / 2 * W, H - (Xh[:, 1] + 1) / 2 * H]
+    return MV[:3, :3], project
