@@ -280,7 +280,10 @@ class MorphableModel:
         """
         if _torch_tensor(identity) or _torch_tensor(expression):
             return self._evaluate_torch(identity, expression)
-        return self._evaluate(slice(None), identity, expression, dtype)
+        # one BLAS thread: the whole mesh is a GEMV (or a thin GEMM) that two threads ran 7x
+        # slower (SFM, 2 cores), and whose idle threads spin against other work afterwards
+        with single_blas_thread():
+            return self._evaluate(slice(None), identity, expression, dtype)
 
     def vertices_at(self, ids, identity=None, expression=None, dtype=np.float64) -> np.ndarray:
         """Vertex positions of the rows ``ids`` only (never builds the whole mesh).
@@ -301,9 +304,6 @@ class MorphableModel:
             raise InputError(f"{self.name}: vertex ids must be a vector in [0, {self.n_vertices})")
         return self._evaluate(ids, identity, expression, dtype)
 
-    # one BLAS thread: the product is a GEMV (or a thin GEMM) that two threads ran 7x slower
-    # (SFM, 2 cores), and whose idle threads spin against other work afterwards
-    @single_blas_thread()
     def _evaluate(self, rows, identity, expression, dtype) -> np.ndarray:
         dtype = np.dtype(dtype)
         a = _as_coefficients(identity, self.n_identity, "identity", dtype)
