@@ -57,6 +57,11 @@ class EosFitter:
     def fit_with_pose(self, landmarks, image_size):
         """(68, 2) px (NaN = missing) -> (V, 3) mm vertices in the model frame and eos'
         ``RenderingParameters`` (its camera: :func:`eos_projection`)."""
+        v, pose, _ = self.fit_with_identity(landmarks, image_size)
+        return v, pose
+
+    def fit_with_identity(self, landmarks, image_size):
+        """Like :meth:`fit_with_pose`, and the fitted identity without expression, (V, 3) mm."""
         eos = self.eos
         lm = np.asarray(landmarks, dtype=np.float64)
         pts = [eos.core.Landmark(str(i + 1), [float(x), float(y)])
@@ -64,13 +69,15 @@ class EosFitter:
         if len(pts) < 6:
             raise FitError(f"eos needs at least 6 landmarks, got {len(pts)}")
         W, H = (int(s) for s in image_size)
-        mesh, pose, _shape, _expr = eos.fitting.fit_shape_and_pose(
+        mesh, pose, shape, _expr = eos.fitting.fit_shape_and_pose(
             self.model, pts, self.mapper, W, H, self.edges, self.contour_lm, self.contour,
             num_iterations=self.num_iterations, lambda_identity=self.lambda_identity)
         v = np.asarray(mesh.vertices, dtype=np.float64)
-        if not np.isfinite(v).all():
+        neutral = np.asarray(self.model.get_shape_model().draw_sample(shape),
+                             dtype=np.float64).reshape(-1, 3)
+        if not (np.isfinite(v).all() and np.isfinite(neutral).all()):
             raise FitError("eos returned non-finite vertices")
-        return v, pose
+        return v, pose, neutral
 
     def fit(self, landmarks, image_size) -> np.ndarray:
         """(N, 68, 2) px -> (N, V, 3) mm, one independent fit per image."""

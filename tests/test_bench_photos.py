@@ -1,0 +1,62 @@
+"""The real-photo benchmarks' scoring: NME, |yaw| bins with failures, pose angles, identity consistency."""
+import numpy as np
+import pytest
+
+from evaluation.bench_alignment import (aflw_angles, box_size, eye_distance, load_300w,
+                                        load_aflw2000, nme, yaw_table)
+from evaluation.bench_identity import consistency, london_pairs
+
+
+def test_nme_and_normalisers():
+    gt = np.zeros((2, 68, 2))
+    gt[:, :, 0] = np.linspace(0, 40, 68)
+    gt[:, :, 1] = np.linspace(0, 10, 68)
+    np.testing.assert_allclose(box_size(gt), 20.0)
+    np.testing.assert_allclose(eye_distance(gt), np.hypot(*(gt[0, 45] - gt[0, 36])))
+    pred = gt + [3.0, 4.0]
+    pred[1] = np.nan
+    e = nme(pred, gt, box_size(gt))
+    assert e[0] == pytest.approx(25.0) and np.isnan(e[1])
+
+
+def test_yaw_table_counts_failures_in_their_bin():
+    yaw = np.array([5.0, -29.0, 45.0, -80.0, 95.0, 61.0])
+    err = np.array([1.0, 3.0, np.nan, 4.0, 6.0, np.nan])
+    t = yaw_table(err, yaw)
+    assert [b["photos"] for b in t["bins"]] == [2, 1, 3]
+    assert [b["failures"] for b in t["bins"]] == [0, 1, 1]
+    assert t["bins"][0]["nme_percent"] == pytest.approx(2.0)
+    assert t["bins"][1]["nme_percent"] is None and t["mean_percent"] is None
+    t = yaw_table(np.array([1.0, 2.0, 3.0]), np.array([0.0, 31.0, 70.0]))
+    assert t["mean_percent"] == pytest.approx(2.0)
+
+
+def test_aflw_angles_reorder_and_flip_roll():
+    np.testing.assert_allclose(aflw_angles([[10.0, 20.0, 30.0]]), [[20.0, 10.0, -30.0]])
+
+
+def test_consistency_identifies_identical_pairs():
+    rng = np.random.default_rng(0)
+    base = rng.normal(0, 30, (50, 3))
+    people = [base + rng.normal(0, 3, base.shape) for _ in range(4)]
+    neutral = np.stack(people)
+    # the smiling photo's identity: the same person, moved, turned and scaled, a little off
+    c, s = np.cos(0.3), np.sin(0.3)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    smiling = np.stack([1.1 * p @ R.T + 5 + rng.normal(0, 0.1, p.shape) for p in people])
+    r = consistency(neutral, smiling)
+    assert r["identification_rate"] == 1.0
+    assert r["within_mm"] < 0.3 < r["between_median_mm"]
+    smiling[2] = np.nan            # a failed fit drops out of the comparisons it is part of
+    r = consistency(neutral, smiling)
+    assert r["pairs_fitted"] == 3 and r["identification_rate"] == 1.0
+
+
+def test_real_sets_load(data_dir):
+    a = load_aflw2000(data_dir, 3)
+    assert a["gt"].shape == (3, 68, 2) and np.isfinite(a["gt"]).all() and len(a["paths"]) == 3
+    assert all(p.is_file() for p in a["paths"])
+    w = load_300w(data_dir, 4)
+    assert w["gt"].shape == (4, 68, 2) and set(w["subset"]) == {"afw", "helen"}
+    pairs = london_pairs(data_dir)
+    assert len(pairs) == 102 and all(n.is_file() and s.is_file() for _, n, s in pairs)
