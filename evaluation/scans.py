@@ -201,8 +201,14 @@ def load_scan(path, landmarks, units: str = "auto") -> Scan:
             uv = np.asarray(visual.uv, dtype=np.float64)
         if uv is None:
             texture = None
+    colors = None
+    if texture is None and getattr(visual, "kind", None) == "vertex":
+        # a PLY with per-vertex colours: they dress the scan in rendered frames
+        c = np.asarray(visual.vertex_colors)
+        if c.shape[0] == len(vertices):
+            colors = c[:, :3].astype(np.float64) / 255.0
     return Scan(vertices=vertices * k, triangles=triangles, landmarks=lm * k, units=units,
-                source=str(path), uv=uv, triangle_uv=triangle_uv, texture=texture)
+                source=str(path), uv=uv, triangle_uv=triangle_uv, texture=texture, colors=colors)
 
 
 def model_scan(model, rng=None, identity_std: float = 1.0, expression_std: float = 0.0,

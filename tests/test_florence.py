@@ -652,3 +652,30 @@ def test_subjects_wear_a_photos_colours(sfm, data_dir):
         model_scan(sfm, 3, colors=colors[:10])
     with pytest.raises(InputError, match="no such image"):
         photo_colors(sfm, data_dir / "images" / "missing.png")
+
+
+def test_ply_vertex_colours_dress_the_scan(sfm, tmp_path):
+    # a scan saved as PLY with per-vertex colours renders in them (the detector needs a face)
+    import trimesh
+
+    from evaluation.scans import load_scan, model_scan
+    from evaluation.videos import render_frames, synthetic_video
+
+    rng = np.random.default_rng(0)
+    colors = np.clip(np.array([0.8, 0.5, 0.3]) + rng.normal(0, 0.05, (sfm.n_vertices, 3)), 0, 1)
+    scan = model_scan(sfm, 3, colors=colors)
+    rgba = np.c_[np.round(scan.colors * 255), np.full(len(scan.colors), 255)].astype(np.uint8)
+    path = tmp_path / "scan.ply"
+    trimesh.Trimesh(scan.vertices, scan.triangles, vertex_colors=rgba, process=False).export(path)
+    back = load_scan(path, scan.landmarks, units="mm")
+    assert back.colors is not None and back.texture is None
+    np.testing.assert_allclose(back.colors, scan.colors, atol=0.5 / 255 + 1e-9)
+    video = synthetic_video(back, "cooperative", sfm.landmark_positions(), 6, 1, seed=0)
+    img = render_frames(back, video, frames=[0], supersample=1)[0]
+    face = img.reshape(-1, 3)
+    face = face[np.abs(face - face[0]).sum(1) > 0.1]          # pixels unlike the background's
+    # skin-coloured, not grey clay: red well above blue where the face is
+    assert len(face) > 1000 and np.median(face[:, 0] - face[:, 2]) > 0.1
+    plain = tmp_path / "plain.ply"
+    trimesh.Trimesh(scan.vertices, scan.triangles, process=False).export(plain)
+    assert load_scan(plain, scan.landmarks, units="mm").colors is None
