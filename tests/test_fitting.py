@@ -607,7 +607,8 @@ def test_fit_options_carry_the_defaults_of_fit_landmarks():
 
     params = inspect.signature(fit_landmarks).parameters
     fields = {f.name: f for f in dataclasses.fields(FitOptions)}
-    assert set(fields) == {n for n, p in params.items() if p.kind is p.KEYWORD_ONLY} - {"mask"}
+    assert set(fields) == {n for n, p in params.items()
+                           if p.kind is p.KEYWORD_ONLY} - {"mask", "scheme"}
     for name, f in fields.items():
         default = f.default_factory() if f.default is dataclasses.MISSING else f.default
         assert np.array_equal(default, params[name].default), name

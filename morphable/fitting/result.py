@@ -27,12 +27,13 @@ class FitResult:
     expression : (N, E) float64, per-frame expression coefficients
     cameras : list of N :class:`morphable.camera.Camera`
     landmark_rmse_px : (N,) float64, RMS distance (px) between the given landmarks and the
-        projections of their model points (jaw points: the distance across the fitted
+        projections of their model points (outline points: the distance across the fitted
         outline), over the landmarks used by the fit
-    landmarks : (N, 68, 2) the input pixels (NaN where missing)
-    fitted_landmarks : (N, 68, 2) projected model points (jaw points: the foot of the given
-        point on the projected outline; NaN where unused)
-    landmark_vertices : (N, 68) int, nearest model vertex of each used landmark, -1 if unused
+    landmarks : (N, L, 2) the input pixels (NaN where missing), L the landmarks of the
+        scheme fitted
+    fitted_landmarks : (N, L, 2) projected model points (outline points: the foot of the
+        given point on the projected outline; NaN where unused)
+    landmark_vertices : (N, L) int, nearest model vertex of each used landmark, -1 if unused
     shared_identity : bool
     iterations : int, nonlinear iterations run
     runtime_ms : float, wall time of the fit (without the once-per-model preparation of its
@@ -114,7 +115,7 @@ class FitResult:
 def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
     """The :class:`FitResult` of a finished fit: its :class:`~morphable.fitting.problem.Problem`
     ``pb`` and final :class:`~morphable.fitting.problem.State` ``st``, the nonlinear
-    iterations run, and the final residuals ``r`` (N, 68, 2) px and depths (N, 68) mm
+    iterations run, and the final residuals ``r`` (N, L, 2) px and depths (N, L) mm
     (:func:`~morphable.fitting.rows.residuals`). FitError for a non-finite fit, or a pinhole
     fit with landmarks behind the camera."""
     used = pb.mask & st.corr.defined
@@ -137,7 +138,7 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                            image_size=(W_, H_), principal=pb.principal[i]))
     K, y = pb.n_identity, pb.y_obs
     frame_alpha = np.broadcast_to(st.alpha[:, :K], (pb.N, K)).copy()
-    # jaw points: the foot of the landmark on the fitted outline (the target moved along it)
+    # outline points: the foot of the landmark on the fitted outline (the target moved along it)
     fitted = np.where(used[..., None], y + r, np.nan)
     return FitResult(model=pb.model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
                      expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,

@@ -1,9 +1,9 @@
-"""The sliding jaw correspondences of a fit, re-picked on the face's current outline.
+"""The sliding outline correspondences of a fit, re-picked on the face's current outline.
 
-Every round of the linear stage and every second nonlinear iteration, each 2D jaw point takes
-the nearest point of the face's projected outline — the jaw line where it faces the camera,
-else the cheek's silhouette, at any height — and only its distance across the outline counts
-(:mod:`~morphable.fitting.correspondences`).
+Every round of the linear stage and every second nonlinear iteration, each 2D outline point
+(iBUG-68's jaw, the face mesh's oval) takes the nearest point of the face's projected outline
+— the jaw line where it faces the camera, else the cheek's silhouette, at any height — and
+only its distance across the outline counts (:mod:`~morphable.fitting.correspondences`).
 """
 from __future__ import annotations
 
@@ -14,33 +14,46 @@ from .pose import project
 from .problem import Problem, State
 from .rows import gather
 
-__all__ = ["slide"]
+__all__ = ["slide", "face_outline"]
 
 
 def slide(pb: Problem, st: State):
-    """Re-pick the jaw correspondences on the current outline, move their targets along it
+    """Re-pick the outline correspondences on the current outline, move their targets along it
     (:func:`~morphable.fitting.correspondences.slide_contours`) and gather their rows anew;
-    nothing where no frame gives a jaw point."""
-    bank = pb.bank
+    nothing where no frame gives an outline point."""
     if pb.sliding is None:
         return
-    if pb.perspective:
+    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
+    outlines, projected = face_outline(pb.bank, pb.A, pb.B if pb.E else None, alpha, st.beta,
+                                       st.R, st.t, st.k, pb.principal, pb.perspective)
+    pb.y, pb.tangent = slide_contours(pb.bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
+    gather(pb, st, sliding_only=True)
+
+
+def face_outline(bank, A, B, alpha, beta, R, t, k, principal, perspective: bool):
+    """The face's outline in N frames: per polyline of ``bank``, its outline points ``(a, b,
+    w)`` (N, M) (:func:`~morphable.fitting.correspondences.outline_points`) and their
+    projections (N, M, 2) px.
+
+    ``A`` (R, 3, K) and ``B`` (R, 3, E) (or None) are identity and expression rows of the
+    bank, ``alpha`` (N, K) and ``beta`` (N, E) their coefficients; ``R`` (N, 3, 3), ``t``
+    (N, 3) mm, ``k`` (N,) px/mm or focal px, ``principal`` (N, 2) px the cameras (see
+    :func:`~morphable.fitting.pose.project`)."""
+    if perspective:
         # a pinhole camera sees the outline where the surface turns away from its centre (the
         # direction taken to each line's start on the mean shape: a few mm do not change it)
-        centre = -np.einsum("nji,nj->ni", st.R, st.t)
+        centre = -np.einsum("nji,nj->ni", R, t)
         view = []
         for lines in bank.outlines:
             v = centre[:, None] - bank.mean[lines[:, 0]][None]
             view.append(v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
     else:
-        view = st.R[:, 2]
+        view = R[:, 2]
     outlines = outline_points(bank, view)
-    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
     projected = []
     for a, b, w in outlines:
-        X = [bank.mean[r] + np.einsum("nlik,nk->nli", pb.A[r], alpha)
-             + (np.einsum("nlie,ne->nli", pb.B[r], st.beta) if pb.E else 0.0) for r in (a, b)]
+        X = [bank.mean[r] + np.einsum("nlik,nk->nli", A[r], alpha)
+             + (np.einsum("nlie,ne->nli", B[r], beta) if B is not None else 0.0) for r in (a, b)]
         X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
-        projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
-    pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
-    gather(pb, st, sliding_only=True)
+        projected.append(project(X, R, t, k, principal, perspective, False)[0])
+    return outlines, projected
