@@ -85,9 +85,27 @@ class FitResult:
         """(V, 3) mm: the identity without expression (the per-frame average when not shared)."""
         return self.model.vertices(self.identity, None, dtype=dtype or self.dtype)
 
+    def landmarks_68_px(self) -> np.ndarray:
+        """(N, 68, 2) 0-based px: the fitted face's iBUG-68 landmarks in each frame, whatever
+        landmark set was fitted, so that any benchmark can compare a fit with 68-point ground
+        truth; NaN where the model has no such point (SFM's inner mouth corners).
+
+        The rule is :func:`~morphable.fitting.synthetic.simulate_landmarks`' on the fitted face
+        and camera: fixed points (the chin among them) are projected, jaw points lie on the
+        face's outline at the heights where a detector puts them (evenly spaced along the jaw
+        line from the outer eye corners' height down to the chin; on the cheek's silhouette
+        where the jaw line turns away)."""
+        from .synthetic import simulate_landmarks
+
+        return np.stack([simulate_landmarks(self.model, cam, vertices=self.vertices(i, np.float64))
+                         for i, cam in enumerate(self.cameras)])
+
     def to_dict(self, images=None) -> dict:
-        """JSON-ready report: model, per-frame pose and residual, identity, iterations, runtime."""
+        """JSON-ready report: model, per-frame pose and residual, the fitted face's projected
+        iBUG-68 landmarks (``landmarks_68_px``, 68 x [x, y] px or null where the model has no
+        such point), identity, iterations, runtime."""
         images = list(images) if images is not None else [None] * self.n_frames
+        lm68 = self.landmarks_68_px()
         frames = []
         for i, cam in enumerate(self.cameras):
             yaw, pitch, roll = (float(a) for a in cam.euler_deg)
@@ -98,7 +116,9 @@ class FitResult:
                  "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll,
                  "translation": [float(x) for x in cam.translation], "camera": cam.kind,
                  "image_size": list(cam.image_size),
-                 "expression": {n: float(v) for n, v in zip(self.model.expression_names, self.expression[i])}}
+                 "expression": {n: float(v) for n, v in zip(self.model.expression_names, self.expression[i])},
+                 "landmarks_68_px": [[float(x), float(y)] if np.isfinite(x + y) else None
+                                     for x, y in lm68[i]]}
             if cam.kind == "affine":
                 f["scale"] = float(cam.scale)
             else:

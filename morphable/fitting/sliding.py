@@ -14,46 +14,33 @@ from .pose import project
 from .problem import Problem, State
 from .rows import gather
 
-__all__ = ["slide", "face_outline"]
+__all__ = ["slide"]
 
 
 def slide(pb: Problem, st: State):
     """Re-pick the outline correspondences on the current outline, move their targets along it
     (:func:`~morphable.fitting.correspondences.slide_contours`) and gather their rows anew;
     nothing where no frame gives an outline point."""
+    bank = pb.bank
     if pb.sliding is None:
         return
-    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
-    outlines, projected = face_outline(pb.bank, pb.A, pb.B if pb.E else None, alpha, st.beta,
-                                       st.R, st.t, st.k, pb.principal, pb.perspective)
-    pb.y, pb.tangent = slide_contours(pb.bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
-    gather(pb, st, sliding_only=True)
-
-
-def face_outline(bank, A, B, alpha, beta, R, t, k, principal, perspective: bool):
-    """The face's outline in N frames: per polyline of ``bank``, its outline points ``(a, b,
-    w)`` (N, M) (:func:`~morphable.fitting.correspondences.outline_points`) and their
-    projections (N, M, 2) px.
-
-    ``A`` (R, 3, K) and ``B`` (R, 3, E) (or None) are identity and expression rows of the
-    bank, ``alpha`` (N, K) and ``beta`` (N, E) their coefficients; ``R`` (N, 3, 3), ``t``
-    (N, 3) mm, ``k`` (N,) px/mm or focal px, ``principal`` (N, 2) px the cameras (see
-    :func:`~morphable.fitting.pose.project`)."""
-    if perspective:
+    if pb.perspective:
         # a pinhole camera sees the outline where the surface turns away from its centre (the
         # direction taken to each line's start on the mean shape: a few mm do not change it)
-        centre = -np.einsum("nji,nj->ni", R, t)
+        centre = -np.einsum("nji,nj->ni", st.R, st.t)
         view = []
         for lines in bank.outlines:
             v = centre[:, None] - bank.mean[lines[:, 0]][None]
             view.append(v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
     else:
-        view = R[:, 2]
+        view = st.R[:, 2]
     outlines = outline_points(bank, view)
+    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
     projected = []
     for a, b, w in outlines:
-        X = [bank.mean[r] + np.einsum("nlik,nk->nli", A[r], alpha)
-             + (np.einsum("nlie,ne->nli", B[r], beta) if B is not None else 0.0) for r in (a, b)]
+        X = [bank.mean[r] + np.einsum("nlik,nk->nli", pb.A[r], alpha)
+             + (np.einsum("nlie,ne->nli", pb.B[r], st.beta) if pb.E else 0.0) for r in (a, b)]
         X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
-        projected.append(project(X, R, t, k, principal, perspective, False)[0])
-    return outlines, projected
+        projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
+    pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
+    gather(pb, st, sliding_only=True)
