@@ -7,6 +7,8 @@ import pytest
 from morphable import FitError, InputError
 from morphable.camera import Camera
 from morphable.fitting import estimate_affine_pose, fit_landmarks, project, simulate_landmarks
+from morphable.fitting import landmark_bank
+from morphable.fitting.options import FitOptions
 from morphable.fitting.schemes import LandmarkScheme, ibug68_scheme
 
 
@@ -437,6 +439,32 @@ def test_dense_surface_points_recover_the_face_better_than_68(sfm):
     e68, e478 = np.mean(err["68"]), np.mean(err["478"])
     assert e478 < 0.8 * e68, (err, pose)
     assert np.mean(pose["478"]) < np.mean(pose["68"]) + 1.0, pose
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_landmark_order_does_not_matter(sfm, face, frames):
+    # outline points scattered among the others (as the face mesh's oval is) slide as indices,
+    # not a slice: the same fit as in iBUG's order, one frame (the Gram shortcut) or two
+    # (the definition offsets)
+    import morphable.fitting.problem as problem
+
+    scheme = surface_scheme(sfm, n=150)
+    perm = np.random.default_rng(4).permutation(scheme.n)
+    inv = np.argsort(perm)
+    shuffled = custom_scheme(sfm, "shuffled", scheme.vertices[perm], scheme.barycentric[perm],
+                             inv[scheme.outline_right], inv[scheme.outline_left],
+                             int(inv[scheme.chin]), np.where(scheme.ibug68 >= 0, inv[scheme.ibug68], -1))
+    lm = np.stack([simulate_landmarks(sfm, Camera.looking_at_face(image_size=(512, 512), yaw=y),
+                                      vertices=sfm.vertices(face[0]), scheme=scheme)
+                   for y in (35, -20)[:frames]])
+    lm += np.random.default_rng(0).normal(0.0, 1.0, lm.shape)
+    a = fit_landmarks(sfm, lm, (512, 512), scheme=scheme)
+    b = fit_landmarks(sfm, lm[:, perm], (512, 512), scheme=shuffled)
+    assert isinstance(problem.Problem(sfm, landmark_bank(sfm, shuffled), FitOptions(), lm[:, perm],
+                                      np.ones(lm.shape[:2], bool),
+                                      np.full((frames, 2), 512.0)).sliding, np.ndarray)
+    np.testing.assert_allclose(b.identity, a.identity, atol=1e-7)
+    np.testing.assert_allclose(b.fitted_landmarks, a.fitted_landmarks[:, perm], atol=1e-6)
 
 
 def test_scheme_fit_with_missing_points_and_mask(sfm, face):
