@@ -23,8 +23,10 @@ with both tools. Times are wall and CPU milliseconds.
 **Partial landmarks and load** (``report["load"]``): the common case of the fitter's users,
 run with ``--load N`` busy processes beside the benchmark (each spins one core for the whole
 measurement and is stopped at its end) and with ``--landmarks 68`` (the jaw's 17 points
-slide along the outline) or ``inner51`` (the 17 jaw points missing as NaN: 51-point
-annotations, detectors that drop the jaw). Faces with |yaw| <= 45, pitch and roll <= 20
+slide along the outline), ``inner51`` (the 17 jaw points missing as NaN: 51-point
+annotations, detectors that drop the jaw) or ``facemesh478`` (the face mesh's 478 points,
+placed by the model's ``facemesh478`` sidecar, the oval sliding; eos fits the same faces'
+68 points). Faces with |yaw| <= 45, pitch and roll <= 20
 degrees, 1 px noise on 512 px; per setting the median wall ms per fit and the mean 3D error
 of ours and eos side by side, fit-batch images/s with 1 and 2 local workers, and two other
 paths users run in parallel: open3d ray casting of a 512 px visibility map (with Embree's
@@ -49,12 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
-from morphable import load_model
+from morphable import InputError, load_model
 from morphable.camera import Camera, euler_to_matrix
 from morphable.cli.common import landmark_std_arg
 from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
 from morphable.fitting.correspondences import (Correspondences, across_outline, outline_points,
                                                slide_contours)
+from morphable.fitting.schemes import load_scheme
 from morphable.io.atomic import atomic_path
 from morphable.ibug68 import JAW
 from morphable.logs import add_verbosity_arguments, configure, verbosity
@@ -95,7 +98,7 @@ def make_sample(model, rng, max_yaw: float = 80.0, max_tilt: float = 30.0):
                  translation=np.r_[rng.uniform(-10, 10, 2), -600.0], scale=rng.uniform(1.3, 1.9),
                  image_size=(IMAGE, IMAGE))
     return {"verts": verts, "alpha": alpha, "beta": beta, "yaw": yaw, "pitch": pitch,
-            "roll": roll, "landmarks": simulate_landmarks(model, cam, vertices=verts)}
+            "roll": roll, "camera": cam, "landmarks": simulate_landmarks(model, cam, vertices=verts)}
 
 
 # --- eos ----------------------------------------------------------------------------------
@@ -316,13 +319,16 @@ def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
 
 
 # --- partial landmarks and load -----------------------------------------------------------
-LANDMARK_SETS = ("68", "inner51")
+LANDMARK_SETS = ("68", "inner51", "facemesh478")
 
 
-def landmark_set(landmarks, name: str) -> np.ndarray:
-    """(68, 2) px -> the points of a landmark set: "68" all, "inner51" without the 17 jaw
-    points (NaN)."""
-    out = np.array(landmarks, dtype=np.float64)
+def landmark_set(sample, name: str) -> np.ndarray:
+    """A sample's points of a landmark set, px: "68" all (68, 2), "inner51" without the 17
+    jaw points (NaN), "facemesh478" the face mesh's (478, 2) (``sample["facemesh478"]``,
+    :func:`load_table`)."""
+    if name == "facemesh478":
+        return sample["facemesh478"]
+    out = np.array(sample["landmarks"], dtype=np.float64)
     if name == "inner51":
         out[JAW] = np.nan
     return out
@@ -348,11 +354,12 @@ def _fit_rows(model, eos_fitter, samples, names):
     for name in names:
         per = {"ours": [], "eos": []}
         for s in samples:
-            lms = landmark_set(s["landmarks"], name)
+            lms = landmark_set(s, name)
             with _Clock() as clock:
                 res = fit_landmarks(model, lms, (IMAGE, IMAGE))
             per["ours"].append((clock.ms, clock.cpu_ms, similarity_error(res.vertices(0), s["verts"])))
             if eos_fitter is not None:
+                lms = landmark_set(s, "68" if name == "facemesh478" else name)
                 with _Clock() as clock:
                     verts, _, _ = eos_fit(eos_fitter, lms, (IMAGE, IMAGE))
                 per["eos"].append((clock.ms, clock.cpu_ms, similarity_error(verts, s["verts"])))
@@ -430,10 +437,14 @@ def load_table(model, eos_fitter, names=LANDMARK_SETS, loads=(0, 1, 2), n: int =
     landmark set, ours against eos; fit-batch throughput; the other parallel paths."""
     rng = np.random.default_rng(seed + 3)
     samples = [make_sample(model, rng, max_yaw=45.0, max_tilt=20.0) for _ in range(n)]
+    dense = load_scheme(model, "facemesh478") if "facemesh478" in names else None
     for s in samples:
         s["landmarks"] = s["landmarks"] + sigma * rng.standard_normal(s["landmarks"].shape)
+        if dense is not None:
+            p = simulate_landmarks(model, s["camera"], vertices=s["verts"], scheme=dense)
+            s["facemesh478"] = p + sigma * rng.standard_normal(p.shape)
     for name in names:                    # warm the caches of every landmark set
-        fit_landmarks(model, landmark_set(samples[0]["landmarks"], name), (IMAGE, IMAGE))
+        fit_landmarks(model, landmark_set(samples[0], name), (IMAGE, IMAGE))
     table = {}
     for load in loads:
         with busy_processes(load), tempfile.TemporaryDirectory(prefix="bench_load.") as tmp:
@@ -473,8 +484,8 @@ def main(argv=None):
     p.add_argument("--no-noise-table", action="store_true",
                    help="skip the noise-level table and image_0010 (the load table only)")
     p.add_argument("--landmarks", nargs="+", choices=LANDMARK_SETS, default=[],
-                   help="load table: landmark sets, 68 (with the sliding jaw) and/or inner51 "
-                        "(the jaw missing)")
+                   help="load table: landmark sets, 68 (with the sliding jaw), inner51 "
+                        "(the jaw missing) and/or facemesh478 (the face mesh's points)")
     p.add_argument("--load", nargs="+", type=int, default=[0], metavar="N",
                    help="load table: busy processes beside the benchmark (default 0)")
     p.add_argument("--load-n", type=int, default=100, help="faces of the load table")
@@ -483,6 +494,12 @@ def main(argv=None):
     configure(verbosity(a))
     if any(n < 0 for n in a.load):
         p.error("--load: the number of busy processes must be >= 0")
+    if "facemesh478" in a.landmarks:
+        try:                              # before any measurement: the sidecar must exist
+            load_scheme(load_model("sfm"), "facemesh478")
+        except InputError as e:
+            print(f"--landmarks facemesh478: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
     a.report.parent.mkdir(parents=True, exist_ok=True)
     if a.no_noise_table:
         report = {"n": 0, "seed": a.seed}

@@ -323,12 +323,13 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
     along the subject's jaw line as the mean face expects them, moved by ``arc_offset`` mm."""
     if not np.isnan(landmarks[:17]).any():
         return
-    from morphable.fitting.correspondences import interpolate_arc, landmark_bank
+    from morphable.fitting.correspondences import eye_corner_height, interpolate_arc, landmark_bank
     from morphable.fitting.synthetic import jaw_arc_positions
 
     bank = landmark_bank(model)
+    eye_y = eye_corner_height(model, bank.scheme)
     for lms, chain in bank.polylines:
-        P, arc, at = jaw_arc_positions(model, lms, bank.vertex_ids[chain], vertices)
+        P, arc, at = jaw_arc_positions(model, lms, bank.vertex_ids[chain], vertices, eye_y)
         at = np.clip(at + arc_offset[lms], 0.0, arc[-1])
         fill = np.isnan(landmarks[lms]).any(1)
         landmarks[lms[fill]] = interpolate_arc(P, arc, at)[fill]

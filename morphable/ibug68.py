@@ -99,22 +99,25 @@ def from_menpo_labels(points, labels: dict, source: str = "landmarks") -> np.nda
     return out
 
 
-def as_landmarks(landmarks, source: str = "landmarks", dim: int = 2) -> tuple[np.ndarray, np.ndarray]:
+def as_landmarks(landmarks, source: str = "landmarks", dim: int = 2,
+                 n: int | None = N_LANDMARKS) -> tuple[np.ndarray, np.ndarray]:
     """Validate landmarks and split them into values and a visibility mask.
 
     Parameters
     ----------
-    landmarks : (..., 68, dim) array-like; NaN rows mark missing points
+    landmarks : (..., n, dim) array-like; NaN rows mark missing points
     dim : 2 or 3
+    n : the number of landmarks, 68; None: any number
 
     Returns
     -------
-    points : (..., 68, dim) float64 with NaN rows replaced by 0
-    mask : (..., 68) bool, True where a point is given
+    points : (..., n, dim) float64 with NaN rows replaced by 0
+    mask : (..., n) bool, True where a point is given
     """
     a = np.asarray(landmarks, dtype=np.float64)
-    if a.ndim < 2 or a.shape[-2:] != (N_LANDMARKS, dim):
-        raise InputError(f"{source}: expected (..., {N_LANDMARKS}, {dim}) landmarks, got {a.shape}")
+    if a.ndim < 2 or a.shape[-1] != dim or (n is not None and a.shape[-2] != n):
+        raise InputError(f"{source}: expected (..., {'L' if n is None else n}, {dim}) landmarks, "
+                         f"got {a.shape}")
     if np.isinf(a).any():
         raise InputError(f"{source}: landmarks contain inf")
     nan = np.isnan(a)

@@ -7,6 +7,9 @@ import pytest
 from morphable import FitError, InputError
 from morphable.camera import Camera
 from morphable.fitting import estimate_affine_pose, fit_landmarks, project, simulate_landmarks
+from morphable.fitting import landmark_bank
+from morphable.fitting.options import FitOptions
+from morphable.fitting.schemes import LandmarkScheme, ibug68_scheme
 
 
 def synth(model, yaw=0.0, pitch=0.0, roll=0.0, identity=None, expression=None, kind="affine",
@@ -302,32 +305,6 @@ def test_definition_std_per_landmark(sfm, face):
         fit_landmarks(sfm, lm, (512, 512), definition_std_mm=np.ones(5))
 
 
-def test_jaw_points_count_only_across_the_outline(sfm, face):
-    # a detector puts jaw points on the face's outline, at heights of its own: sliding them
-    # along the outline changes little, moving them across it does
-    from morphable.fitting import landmark_bank
-    from morphable.fitting.correspondences import outline_points
-
-    lm, cam, verts = synth(sfm, yaw=40, identity=face[0])
-    bank = landmark_bank(sfm)
-    along, across = lm.copy(), lm.copy()
-    for (lms, _), (a, b, w) in zip(bank.polylines, outline_points(bank, cam.rotation[None, 2])):
-        X = (1 - w[0, :, None]) * verts[bank.vertex_ids[a[0]]] + w[0, :, None] * verts[bank.vertex_ids[b[0]]]
-        uv = cam.project(X)                             # the outline, top to chin
-        for j, k in zip(lms, np.linspace(2, len(uv) - 3, len(lms)).astype(int)):
-            t = uv[k + 1] - uv[k - 1]
-            if np.linalg.norm(t) < 1e-6:
-                continue                                # no direction where lines coincide
-            t /= np.linalg.norm(t)
-            lm[j] = along[j] = across[j] = uv[k]
-            along[j] += 4.0 * t
-            across[j] += 4.0 * np.array([-t[1], t[0]])
-    fits = {k: fit_landmarks(sfm, v, (512, 512), n_expression=0) for k, v in
-            (("base", lm), ("along", along), ("across", across))}
-    d = {k: np.abs(fits[k].vertices(0) - fits["base"].vertices(0)).max() for k in ("along", "across")}
-    assert d["along"] < 0.35 * d["across"], d
-
-
 @pytest.mark.parametrize("sigma", [1.0, 3.0])
 def test_auto_landmark_noise_is_estimated(sfm, sigma):
     rng = np.random.default_rng(5)
@@ -375,6 +352,216 @@ def test_expression_prior_scales_with_the_number_of_blendshapes(ict, sfm):
         err.append(aligned_error(res.neutral_vertices()[face], ict.vertices(alpha)[face]))
         energy.append((res.expression ** 2).sum(1).mean())
     assert energy[0] < energy[1] / 3 and err[0] < err[1], (err, energy)
+
+
+# --- landmark schemes ---------------------------------------------------------------------
+def custom_scheme(model, name, vertices, barycentric, right=(), left=(), chin=-1, ibug68=None,
+                  definition_std_mm=1.0):
+    L = len(vertices)
+    return LandmarkScheme(
+        name=name, model_name=model.name, vertices=np.asarray(vertices, np.int64),
+        barycentric=np.asarray(barycentric, np.float64), outline_right=np.asarray(right, np.int64),
+        outline_left=np.asarray(left, np.int64), chin=chin,
+        definition_std_mm=np.full(L, definition_std_mm), mirror=np.arange(L),
+        ibug68=np.full(68, -1) if ibug68 is None else np.asarray(ibug68, np.int64))
+
+
+def oval_scheme(model, per_side=10):
+    """iBUG's 51 inner points, then ``per_side`` outline points a side (no vertex: they slide,
+    top to chin) and the chin."""
+    ibug = ibug68_scheme(model)
+    inner = np.arange(17, 68)
+    J = 2 * per_side
+    vertices = np.r_[ibug.vertices[inner], np.full((J, 3), -1), ibug.vertices[[8]]]
+    bary = np.r_[ibug.barycentric[inner], np.tile([1.0, 0, 0], (J + 1, 1))]
+    ibug68 = np.full(68, -1)
+    ibug68[inner] = np.arange(51)
+    return custom_scheme(model, "oval", vertices, bary, 51 + np.arange(per_side),
+                         51 + per_side + np.arange(per_side), 51 + J, ibug68)
+
+
+def surface_scheme(model, n=478, seed=0):
+    """iBUG's 17 jaw points (sliding, the chin fixed) and its outer eye corners, then random
+    points on forward-facing triangles of the face inside the inner landmarks' box: ``n`` in all."""
+    from morphable.normals import vertex_normals
+
+    ibug = ibug68_scheme(model)
+    keep = np.r_[0:17, 36, 45]
+    mean = model.mean.astype(float)
+    ids = model.landmark_ids[17:][model.landmark_ids[17:] >= 0]
+    lo, hi = mean[ids, :2].min(0) - 5.0, mean[ids, :2].max(0) + 5.0
+    tri = np.asarray(model.triangles)
+    c = mean[tri].mean(1)
+    nz = vertex_normals(mean, model.triangles)[tri].mean(1)[:, 2]
+    ok = np.flatnonzero(((c[:, :2] > lo) & (c[:, :2] < hi)).all(1) & (nz > 0.3))
+    rng = np.random.default_rng(seed)
+    m = n - len(keep)
+    pick = rng.choice(ok, m, replace=False)
+    vertices = np.r_[ibug.vertices[keep], tri[pick]]
+    bary = np.r_[ibug.barycentric[keep], rng.dirichlet(np.ones(3), m)]
+    ibug68 = np.full(68, -1)
+    ibug68[keep] = np.arange(len(keep))
+    return custom_scheme(model, "surface", vertices, bary, ibug.outline_right, ibug.outline_left,
+                         8, ibug68)
+
+
+def test_surface_points_get_rows_combined_from_their_triangle(sfm):
+    # the fit evaluates the landmark rows only: a surface point's row is its triangle's rows
+    # combined, for the mean, identity and expression alike
+    from morphable.fitting import landmark_bank
+
+    scheme = surface_scheme(sfm)
+    bank = landmark_bank(sfm, scheme)
+    rows = bank.fixed_row[scheme.defined]
+    alpha = np.random.default_rng(1).standard_normal(sfm.n_identity)
+    beta = np.linspace(0.0, 1.0, sfm.n_expression)
+    X = bank.mean[rows] + bank.identity[rows] @ alpha + bank.expression[rows] @ beta
+    np.testing.assert_allclose(X, scheme.points(sfm.vertices(alpha, beta))[scheme.defined], atol=1e-9)
+    assert landmark_bank(sfm, scheme) is bank                        # built once per scheme
+
+
+def test_dense_surface_points_recover_the_face_better_than_68(sfm):
+    """478 surface points, 1 px noise, fit the same faces better than iBUG's 68 points (the
+    same outline rule for both, the same definition error)."""
+    dense = surface_scheme(sfm)
+    rng = np.random.default_rng(7)
+    err, pose = {"68": [], "478": []}, {"68": [], "478": []}
+    for yaw in (-40, -15, 10, 35):
+        alpha = rng.standard_normal(sfm.n_identity)
+        cam = Camera.looking_at_face(image_size=(512, 512), yaw=yaw, pitch=rng.uniform(-10, 10))
+        verts = sfm.vertices(alpha)
+        for key, scheme in (("68", None), ("478", dense)):
+            lm = simulate_landmarks(sfm, cam, vertices=verts, scheme=scheme)
+            res = fit_landmarks(sfm, lm + rng.normal(0.0, 1.0, lm.shape), (512, 512),
+                                scheme=scheme, definition_std_mm=1.0)
+            err[key].append(aligned_error(res.vertices(0), verts))
+            pose[key].append(np.abs(res.euler_deg[0] - cam.euler_deg).max())
+    e68, e478 = np.mean(err["68"]), np.mean(err["478"])
+    assert e478 < 0.8 * e68, (err, pose)
+    assert np.mean(pose["478"]) < np.mean(pose["68"]) + 1.0, pose
+
+
+@pytest.mark.parametrize("frames", [1, 2])
+def test_landmark_order_does_not_matter(sfm, face, frames):
+    # outline points scattered among the others (as the face mesh's oval is) slide as indices,
+    # not a slice: the same fit as in iBUG's order, one frame (the Gram shortcut) or two
+    # (the definition offsets)
+    import morphable.fitting.problem as problem
+
+    scheme = surface_scheme(sfm, n=150)
+    perm = np.random.default_rng(4).permutation(scheme.n)
+    inv = np.argsort(perm)
+    shuffled = custom_scheme(sfm, "shuffled", scheme.vertices[perm], scheme.barycentric[perm],
+                             inv[scheme.outline_right], inv[scheme.outline_left],
+                             int(inv[scheme.chin]), np.where(scheme.ibug68 >= 0, inv[scheme.ibug68], -1))
+    lm = np.stack([simulate_landmarks(sfm, Camera.looking_at_face(image_size=(512, 512), yaw=y),
+                                      vertices=sfm.vertices(face[0]), scheme=scheme)
+                   for y in (35, -20)[:frames]])
+    lm += np.random.default_rng(0).normal(0.0, 1.0, lm.shape)
+    a = fit_landmarks(sfm, lm, (512, 512), scheme=scheme)
+    b = fit_landmarks(sfm, lm[:, perm], (512, 512), scheme=shuffled)
+    assert isinstance(problem.Problem(sfm, landmark_bank(sfm, shuffled), FitOptions(), lm[:, perm],
+                                      np.ones(lm.shape[:2], bool),
+                                      np.full((frames, 2), 512.0)).sliding, np.ndarray)
+    np.testing.assert_allclose(b.identity, a.identity, atol=1e-7)
+    np.testing.assert_allclose(b.fitted_landmarks, a.fitted_landmarks[:, perm], atol=1e-6)
+
+
+def test_scheme_fit_with_missing_points_and_mask(sfm, face):
+    scheme = surface_scheme(sfm)
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=25)
+    lm = simulate_landmarks(sfm, cam, vertices=sfm.vertices(face[0]), scheme=scheme)
+    gone = np.zeros(scheme.n, bool)
+    gone[np.random.default_rng(2).choice(np.arange(19, scheme.n), 150, replace=False)] = True
+    holes = lm.copy()
+    holes[gone] = np.nan
+    a = fit_landmarks(sfm, holes, (512, 512), scheme=scheme)
+    b = fit_landmarks(sfm, lm, (512, 512), scheme=scheme, mask=~gone)
+    np.testing.assert_allclose(a.identity, b.identity)
+    assert a.fitted_landmarks.shape == (1, scheme.n, 2) and a.landmark_vertices.shape == (1, scheme.n)
+    assert np.isnan(a.fitted_landmarks[0, gone]).all() and (a.landmark_vertices[0, gone] == -1).all()
+    assert np.isfinite(a.fitted_landmarks[0, ~gone & scheme.defined]).all()
+    assert a.landmark_rmse_px[0] < 1.0
+    assert abs(a.euler_deg[0, 0] - 25) < 2.0
+
+
+def test_landmark_count_must_match_the_scheme(sfm, ict):
+    from morphable.fitting.schemes import scheme_path
+
+    lm68 = synth(sfm, yaw=10)[0]
+    with pytest.raises(InputError, match="5 points"):
+        fit_landmarks(sfm, np.zeros((5, 2)), (512, 512))
+    with pytest.raises(InputError, match="68 points for the 478-point scheme"):
+        fit_landmarks(sfm, lm68, (512, 512), scheme=surface_scheme(sfm))
+    with pytest.raises(InputError, match="made for model 'ict'"):
+        fit_landmarks(sfm, lm68[:68], (512, 512), scheme=ibug68_scheme(ict))
+    with pytest.raises(InputError, match="expected a number or 478 numbers"):
+        fit_landmarks(sfm, np.zeros((478, 2)), (512, 512), scheme=surface_scheme(sfm),
+                      definition_std_mm=np.ones(68))
+    with pytest.raises(InputError, match=r"mask: expected \(478,\)"):
+        fit_landmarks(sfm, np.zeros((478, 2)), (512, 512), scheme=surface_scheme(sfm),
+                      mask=np.ones(68, bool))
+    if not scheme_path(sfm, "facemesh478").is_file():
+        # 478 points mean the face mesh: without the model's sidecar, one line says so
+        with pytest.raises(InputError, match="no facemesh478 landmark scheme"):
+            fit_landmarks(sfm, np.zeros((478, 2)), (512, 512))
+
+
+@pytest.mark.parametrize("camera", ["affine", "perspective"])
+def test_landmarks_68_of_any_fit(sfm, face, camera):
+    """A fit's projected iBUG-68 landmarks: where fixed, the 68-point fit's own projected
+    landmarks; for a fit of other points, near the face's true iBUG-68 points."""
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=30, kind=camera)
+    verts = sfm.vertices(face[0])
+    truth = simulate_landmarks(sfm, cam, vertices=verts)
+    focal = cam.focal if camera == "perspective" else None
+    res = fit_landmarks(sfm, truth, (512, 512), camera=camera, focal_px=focal)
+    lm68 = res.landmarks_68_px()
+    fixed = np.isfinite(res.fitted_landmarks[0, :, 0])
+    fixed[:17] = False
+    fixed[8] = True                                                   # the chin is fixed
+    np.testing.assert_allclose(lm68[0, fixed], res.fitted_landmarks[0, fixed], atol=1e-6)
+    assert np.isfinite(lm68[0, :17]).all() and np.isnan(lm68[0, [60, 64]]).all()   # SFM: none
+    dense = fit_landmarks(sfm, simulate_landmarks(sfm, cam, vertices=verts, scheme=surface_scheme(sfm)),
+                          (512, 512), scheme=surface_scheme(sfm), camera=camera, focal_px=focal)
+    d = np.linalg.norm(dense.landmarks_68_px()[0] - truth, axis=1)
+    assert np.nanmedian(d[17:]) < 2.0 and np.nanmedian(d[:17]) < 5.0, d
+    frame = res.to_dict()["frames"][0]
+    assert len(frame["landmarks_68_px"]) == 68 and frame["landmarks_68_px"][60] is None
+    np.testing.assert_allclose(frame["landmarks_68_px"][30], lm68[0, 30])
+
+
+@pytest.mark.parametrize("kind", ["ibug68", "oval"])
+def test_outline_points_count_only_across_the_outline(sfm, face, kind):
+    # a detector puts outline points (iBUG's jaw, a custom scheme's oval) on the face's
+    # outline, at heights of its own: sliding them along the outline changes little, moving
+    # them across it does
+    from morphable.fitting import landmark_bank
+    from morphable.fitting.correspondences import outline_points
+
+    scheme = ibug68_scheme(sfm) if kind == "ibug68" else oval_scheme(sfm)
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=40)
+    verts = sfm.vertices(face[0])
+    lm = simulate_landmarks(sfm, cam, vertices=verts, scheme=scheme)
+    bank = landmark_bank(sfm, scheme)
+    assert sorted(j for lms, _ in bank.polylines for j in lms) == sorted(
+        np.r_[scheme.outline_right, scheme.outline_left].tolist())
+    along, across = lm.copy(), lm.copy()
+    for (lms, _), (a, b, w) in zip(bank.polylines, outline_points(bank, cam.rotation[None, 2])):
+        X = (1 - w[0, :, None]) * verts[bank.vertex_ids[a[0]]] + w[0, :, None] * verts[bank.vertex_ids[b[0]]]
+        uv = cam.project(X)                             # the outline, top to chin
+        for j, k in zip(lms, np.linspace(2, len(uv) - 3, len(lms)).astype(int)):
+            t = uv[k + 1] - uv[k - 1]
+            if np.linalg.norm(t) < 1e-6:
+                continue                                # no direction where lines coincide
+            t /= np.linalg.norm(t)
+            lm[j] = along[j] = across[j] = uv[k]
+            along[j] += 4.0 * t
+            across[j] += 4.0 * np.array([-t[1], t[0]])
+    fits = {k: fit_landmarks(sfm, v, (512, 512), scheme=scheme, n_expression=0) for k, v in
+            (("base", lm), ("along", along), ("across", across))}
+    d = {k: np.abs(fits[k].vertices(0) - fits["base"].vertices(0)).max() for k in ("along", "across")}
+    assert d["along"] < 0.35 * d["across"], d
 
 
 # --- stability ---------------------------------------------------------------------------
@@ -607,7 +794,8 @@ def test_fit_options_carry_the_defaults_of_fit_landmarks():
 
     params = inspect.signature(fit_landmarks).parameters
     fields = {f.name: f for f in dataclasses.fields(FitOptions)}
-    assert set(fields) == {n for n, p in params.items() if p.kind is p.KEYWORD_ONLY} - {"mask"}
+    assert set(fields) == {n for n, p in params.items()
+                           if p.kind is p.KEYWORD_ONLY} - {"mask", "scheme"}
     for name, f in fields.items():
         default = f.default_factory() if f.default is dataclasses.MISSING else f.default
         assert np.array_equal(default, params[name].default), name

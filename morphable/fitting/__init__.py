@@ -1,4 +1,5 @@
-"""Landmark fitting: identity, expressions and cameras from 2D iBUG-68 landmarks.
+"""Landmark fitting: identity, expressions and cameras from 2D landmarks (iBUG-68, the face
+mesh's 478 points, any :mod:`.schemes` landmark scheme).
 
 Modules, each usable alone:
 
@@ -7,14 +8,16 @@ Modules, each usable alone:
   - :mod:`.options` — its settings, validated (:class:`~.options.FitOptions`);
   - :mod:`.noise` — the noise and definition-error model, its defaults and the data weights;
   - :mod:`.problem` — a fit's fixed data and its state; :mod:`.rows` — the model rows of the
-    correspondences, the points and residuals they give; :mod:`.sliding` — the jaw
+    correspondences, the points and residuals they give; :mod:`.sliding` — the outline
     correspondences re-picked on the current outline;
   - :mod:`.linear_stage`, :mod:`.nonlinear` — the closed-form start and the joint
     Levenberg-Marquardt; :mod:`.noise_estimation` — ``landmark_std_px="auto"``;
   - :mod:`.result` — :class:`FitResult` and its assembly;
 - :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
 - :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;
-- :mod:`.correspondences` — landmark rows of a model, jaw sliding and the outline's silhouette;
+- :mod:`.schemes` — landmark schemes: L points on a model's surface, the outline ones sliding;
+- :mod:`.correspondences` — landmark rows of a model and scheme, outline sliding and the
+  outline's silhouette;
 - :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
 - :mod:`.detect` — dlib face and 68-point detection.
 

@@ -1,19 +1,26 @@
-"""Which model point each iBUG-68 landmark corresponds to, and the model rows they need.
+"""Which model point each landmark of a scheme corresponds to, and the model rows they need.
 
-Inner landmarks map to fixed vertices (``model.landmark_ids``). Jaw landmarks lie on the
-face's visible *outline*, the way a 68-point detector or annotator places them, at heights
-that vary from annotator to annotator and from view to view. Each side of the face has a
-stack of horizontal *outline lines* of vertices, one every ``OUTLINE_STEP_MM`` along the jaw
-line from 10 mm above the height of the outer eye corners down to the chin; a line runs from the jaw line (the model's
-``contour_right``/``contour_left``, SFM; or the chain of its jaw landmark vertices, ICT)
-inwards to the midline. In every frame each line contributes one outline point: its jaw-line
-vertex where that faces the camera, else where the line crosses the cheek's silhouette
-(interpolated between the two vertices around the zero of the normal's camera component, as
-in 3DDFA's landmark marching; the mean shape's normals, so the full mesh is never
-evaluated). A jaw landmark then corresponds to the outline point nearest to it in the image,
-and only its distance *across* the outline counts: :func:`slide_contours` returns the
-outline's direction there, and the fit drops the residual's component along it. This is eos'
-occluding-contour idea with a continuous outline, on both sides of the face.
+A fit's landmarks follow a :class:`~morphable.fitting.schemes.LandmarkScheme` (iBUG-68, the
+face mesh's 478 points, any other). Its fixed landmarks are points of the model's surface,
+barycentric combinations of a triangle's vertices: their mean, identity and expression rows
+are combined once per model and scheme, so that a fit evaluates these rows only, never the
+mesh (a landmark on a vertex, as iBUG-68's ``model.landmark_ids``, keeps the vertex's row).
+Its outline landmarks (iBUG-68's jaw points, the face mesh's oval) lie on the face's visible
+*outline*, the way a detector or annotator places them, at heights that vary from annotator
+to annotator and from view to view. Each side of the face has a stack of horizontal
+*outline lines* of vertices, one every ``OUTLINE_STEP_MM`` along the jaw line from 10 mm
+above the height of the outer eye corners down to the chin; a line runs from the jaw line
+(the model's ``contour_right``/``contour_left``, SFM; or the chain of the vertices of the
+scheme's outline landmarks, top to chin, ICT) inwards to the midline; the scheme's chin
+landmark is a fixed point that ends both sides' jaw line. In every frame each line
+contributes one outline point: its jaw-line vertex where that faces the camera, else where
+the line crosses the cheek's silhouette (interpolated between the two vertices around the
+zero of the normal's camera component, as in 3DDFA's landmark marching; the mean shape's
+normals, so the full mesh is never evaluated). An outline landmark then corresponds to the
+outline point nearest to it in the image, and only its distance *across* the outline
+counts: :func:`slide_contours` returns the outline's direction there, and the fit drops the
+residual's component along it. This is eos' occluding-contour idea with a continuous
+outline, on both sides of the face.
 
 A correspondence is ``X = (1 - w) * X[a] + w * X[b]`` over two rows of a :class:`LandmarkBank`
 (``a == b``, ``w == 0`` for fixed points), so sliding between vertices is continuous.
@@ -25,13 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .schemes import LandmarkScheme, fit_scheme
+
 __all__ = ["LandmarkBank", "landmark_bank", "Correspondences", "slide_contours",
            "march_silhouette", "outline_lines", "outline_points", "chain_arc", "arc_lengths",
-           "interpolate_arc", "horizontal_lines", "across_outline", "OUTLINE_STEP_MM"]
-
-_RIGHT_JAW = np.arange(0, 8)
-_LEFT_JAW = np.arange(9, 17)
-_CHIN = 8
+           "interpolate_arc", "horizontal_lines", "across_outline", "eye_corner_height",
+           "nearest_vertices", "OUTLINE_STEP_MM"]
 
 OUTLINE_STEP_MM = 2.0
 """Height between two outline lines (mean shape), mm."""
@@ -39,22 +45,25 @@ OUTLINE_STEP_MM = 2.0
 
 @dataclass(eq=False)
 class LandmarkBank:
-    """The model rows landmark fitting touches, precomputed once per model.
+    """The model rows landmark fitting touches, precomputed once per model and scheme.
 
     Attributes
     ----------
-    vertex_ids : (R,) int, the model vertices of the rows
+    scheme : LandmarkScheme, the L landmarks
+    vertex_ids : (R,) int, the model vertex of each row (of a surface point's row: its
+        triangle's vertex of the largest weight)
     mean : (R, 3) float64, mm
     identity : (R, 3, K) float64, mm per unit coefficient
     expression : (R, 3, E) float64
-    fixed_row : (68,) int, row of each landmark's fixed vertex, -1 if none (or if it slides)
-    polylines : list of (landmarks (J,), rows (C,)) — the jaw landmarks of each side and
+    fixed_row : (L,) int, row of each landmark's fixed point, -1 if none (or if it slides)
+    polylines : list of (landmarks (J,), rows (C,)) — the outline landmarks of each side and
         that side's jaw line (top to chin)
     normals : (R, 3) unit normals of the mean shape at the rows
     outlines : list of (L, M) int rows, -1 padded, one per polyline: the side's outline lines
         from the top to the chin, each from the jaw line inwards (the last one is the chin)
     """
 
+    scheme: LandmarkScheme
     vertex_ids: np.ndarray
     mean: np.ndarray
     identity: np.ndarray
@@ -66,7 +75,7 @@ class LandmarkBank:
 
     @property
     def usable(self) -> np.ndarray:
-        """(68,) bool: landmarks that have a model correspondence."""
+        """(L,) bool: landmarks that have a model correspondence."""
         ok = self.fixed_row >= 0
         for lms, _ in self.polylines:
             ok[lms] = True
@@ -76,36 +85,57 @@ class LandmarkBank:
 _BANKS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
-def _polylines(model, slide: bool) -> list:
-    ids = np.asarray(model.landmark_ids)
+def nearest_vertices(scheme: LandmarkScheme) -> np.ndarray:
+    """(L,) the model vertex of each landmark's largest barycentric weight, -1 where none."""
+    v = scheme.vertices[np.arange(scheme.n), np.argmax(scheme.barycentric, 1)]
+    return np.where(scheme.defined, v, -1)
+
+
+def eye_corner_height(model, scheme: LandmarkScheme):
+    """The mean shape's height (y, mm) of the scheme's outer eye corners (its points of
+    iBUG 37 and 46), None where it lacks either."""
+    corners = scheme.ibug68[[36, 45]]
+    if (corners < 0).any():
+        return None
+    y = scheme.points(model.mean)[corners, 1]
+    return float(y.mean()) if np.isfinite(y).all() else None
+
+
+def _polylines(model, scheme: LandmarkScheme, slide: bool) -> list:
     if not slide:
         return []
+    ids = nearest_vertices(scheme)
+    chin = scheme.chin
     out = []
-    for lms, contour in ((_RIGHT_JAW, model.contour_right), (_LEFT_JAW, model.contour_left)):
+    for lms, contour in ((scheme.outline_right, model.contour_right),
+                         (scheme.outline_left, model.contour_left)):
+        lms = np.asarray(lms, dtype=np.int64)
+        lms = lms[lms != chin]
+        if lms.size == 0:
+            continue
         chain = np.asarray(contour, dtype=np.int64)
         if chain.size == 0:
-            # no contour candidates: slide along the model's own jaw vertices (ICT)
-            side = np.append(lms, _CHIN) if lms[0] == 0 else np.append(lms[::-1], _CHIN)
+            # no contour candidates: slide along the model's own outline points (ICT)
+            side = np.append(lms, chin) if chin >= 0 else lms
             if (ids[side] < 0).any():
                 continue
             chain = ids[side]
-        elif ids[_CHIN] >= 0:
-            chain = np.append(chain, ids[_CHIN])
+        elif chin >= 0 and ids[chin] >= 0:
+            chain = np.append(chain, ids[chin])
         if chain.size >= 2:
             out.append((lms, chain))
     return out
 
 
-def chain_arc(model, chain_ids):
+def chain_arc(model, chain_ids, eye_y):
     """Mean-shape chain points (C, 3), their cumulative arc lengths (C,) and the arc position
-    where the chain passes the height of the outer eye corners (0 if it starts lower), mm."""
+    where the chain passes the height ``eye_y`` of the outer eye corners (0 if it starts
+    lower, or for ``eye_y`` None; :func:`eye_corner_height`), mm."""
     mean = np.asarray(model.mean, dtype=np.float64)
     P = mean[chain_ids]
     arc = arc_lengths(P)
     start = 0.0
-    corners = np.asarray(model.landmark_ids)[[36, 45]]
-    if (corners >= 0).all():
-        eye_y = mean[corners, 1].mean()
+    if eye_y is not None:
         above = np.flatnonzero(P[:, 1] >= eye_y)
         if above.size and above[-1] + 1 < len(P):
             i = above[-1]
@@ -152,11 +182,11 @@ def horizontal_lines(model, points, chain_ids, height_mm: float = 3.0,
     return out
 
 
-def outline_lines(model, chain_ids, step_mm: float = OUTLINE_STEP_MM) -> np.ndarray:
+def outline_lines(model, chain_ids, eye_y, step_mm: float = OUTLINE_STEP_MM) -> np.ndarray:
     """(L, M) vertex ids, -1 padded: horizontal lines every ``step_mm`` of arc along the jaw
-    line, from 10 mm above the outer eye corners' height down to the chin (the last line is
-    the chin vertex alone)."""
-    P, arc, start = chain_arc(model, chain_ids)
+    line, from 10 mm above the outer eye corners' height ``eye_y`` (:func:`chain_arc`) down
+    to the chin (the last line is the chin vertex alone)."""
+    P, arc, start = chain_arc(model, chain_ids, eye_y)
     at = np.arange(max(start - 10.0, 0.0), arc[-1] - 0.5 * step_mm, step_mm)
     lines = horizontal_lines(model, interpolate_arc(P, arc, at), chain_ids) + [chain_ids[-1:]]
     out = np.full((len(lines), max(len(v) for v in lines)), -1, dtype=np.int64)
@@ -165,40 +195,60 @@ def outline_lines(model, chain_ids, step_mm: float = OUTLINE_STEP_MM) -> np.ndar
     return out
 
 
-def landmark_bank(model, slide: bool = True) -> LandmarkBank:
-    """The (cached) :class:`LandmarkBank` of ``model``; ``slide=False`` uses fixed jaw vertices only."""
-    per_model = _BANKS.setdefault(model, {})
-    if slide in per_model:
-        return per_model[slide]
-    ids = np.asarray(model.landmark_ids, dtype=np.int64)
-    lines = _polylines(model, slide)
-    sliding = np.zeros(68, bool)
+def landmark_bank(model, scheme: LandmarkScheme | None = None, slide: bool = True) -> LandmarkBank:
+    """The (cached) :class:`LandmarkBank` of ``model`` for ``scheme`` (None: iBUG-68);
+    ``slide=False`` uses fixed points only."""
+    scheme = fit_scheme(model, 68) if scheme is None else scheme
+    per_scheme = _BANKS.setdefault(model, weakref.WeakKeyDictionary()).setdefault(scheme, {})
+    if slide in per_scheme:
+        return per_scheme[slide]
+    L = scheme.n
+    lines = _polylines(model, scheme, slide)
+    sliding = np.zeros(L, bool)
     for lms, _ in lines:
         sliding[lms] = True
-    fixed = np.where(sliding, -1, ids)
+    # a point on one vertex keeps the vertex's row; others get a row of their own
+    one_vertex = scheme.defined & ((scheme.barycentric == 1.0).any(1)
+                                   | (scheme.vertices == scheme.vertices[:, :1]).all(1))
+    fixed = np.where(sliding | ~one_vertex, -1, nearest_vertices(scheme))
+    surface = np.flatnonzero(scheme.defined & ~one_vertex & ~sliding)
     chains = [c for _, c in lines]
-    outline_ids = [outline_lines(model, c) for _, c in lines]
+    eye_y = eye_corner_height(model, scheme)
+    outline_ids = [outline_lines(model, c, eye_y) for _, c in lines]
     rows = np.unique(np.concatenate([fixed[fixed >= 0], *chains, *[o[o >= 0] for o in outline_ids]]))
     lookup = np.full(model.n_vertices, -1, dtype=np.int64)
     lookup[rows] = np.arange(len(rows))
     fixed_row = np.where(fixed >= 0, lookup[np.maximum(fixed, 0)], -1)
+    fixed_row[surface] = len(rows) + np.arange(len(surface))
     polylines = [(lms, lookup[c]) for lms, c in lines]
     outlines = [np.where(o >= 0, lookup[np.maximum(o, 0)], -1) for o in outline_ids]
     from ..normals import vertex_normals
 
-    normals = vertex_normals(model.mean.astype(np.float64), model.triangles)[rows]
+    tri, bary = scheme.vertices[surface], scheme.barycentric[surface]       # (S, 3)
+
+    def with_surface(data):
+        """Per-vertex data (V, ...) -> rows (R, ...) float64: the vertices', then the surface
+        points' barycentric combinations."""
+        point = np.einsum("sj...,sj->s...", data[tri].astype(np.float64), bary)
+        return np.concatenate([data[rows].astype(np.float64), point])
+
+    normals = with_surface(vertex_normals(model.mean.astype(np.float64), model.triangles))
+    n = normals[len(rows):]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     bank = LandmarkBank(
-        vertex_ids=rows,
-        mean=model.mean[rows].astype(np.float64),
-        identity=np.ascontiguousarray(model.identity_basis[:, rows].astype(np.float64).transpose(1, 2, 0)),
+        scheme=scheme,
+        vertex_ids=np.concatenate([rows, nearest_vertices(scheme)[surface]]),
+        mean=with_surface(np.asarray(model.mean)),
+        identity=np.ascontiguousarray(
+            with_surface(np.asarray(model.identity_basis).transpose(1, 2, 0))),
         expression=np.ascontiguousarray(
-            model.expression_basis[:, rows].astype(np.float64).transpose(1, 2, 0)),
+            with_surface(np.asarray(model.expression_basis).transpose(1, 2, 0))),
         fixed_row=fixed_row,
         polylines=polylines,
         normals=normals,
         outlines=outlines,
     )
-    per_model[slide] = bank
+    per_scheme[slide] = bank
     return bank
 
 
@@ -206,7 +256,7 @@ def landmark_bank(model, slide: bool = True) -> LandmarkBank:
 class Correspondences:
     """Per-frame landmark -> model point: ``(1 - w) * row a + w * row b``; ``a`` -1 = none.
 
-    a, b : (N, 68) int rows of the bank; w : (N, 68) float in [0, 1].
+    a, b : (N, L) int rows of the bank; w : (N, L) float in [0, 1].
     """
 
     a: np.ndarray
@@ -215,15 +265,15 @@ class Correspondences:
 
     @classmethod
     def fixed(cls, bank: LandmarkBank, n_frames: int) -> "Correspondences":
-        a = np.broadcast_to(bank.fixed_row, (n_frames, 68)).copy()
-        return cls(a, a.copy(), np.zeros((n_frames, 68)))
+        a = np.broadcast_to(bank.fixed_row, (n_frames, len(bank.fixed_row))).copy()
+        return cls(a, a.copy(), np.zeros(a.shape))
 
     @property
     def defined(self) -> np.ndarray:
         return self.a >= 0
 
     def gather(self, rows: np.ndarray) -> np.ndarray:
-        """Interpolate per-frame row data ``(N or 1, R, ...)`` -> ``(N, 68, ...)`` (0 where undefined)."""
+        """Interpolate per-frame row data ``(N or 1, R, ...)`` -> ``(N, L, ...)`` (0 where undefined)."""
         N = self.a.shape[0]
         rows = np.broadcast_to(rows, (N,) + rows.shape[1:])
         a, b = np.maximum(self.a, 0), np.maximum(self.b, 0)
@@ -233,7 +283,7 @@ class Correspondences:
         return np.where(self.defined.reshape(w.shape), out, 0.0)
 
     def gather_static(self, rows: np.ndarray, cols=None, out=None) -> np.ndarray:
-        """Interpolate frame-independent row data ``(R, ...)`` -> ``(N, 68, ...)``, 0 where
+        """Interpolate frame-independent row data ``(R, ...)`` -> ``(N, L, ...)``, 0 where
         undefined; with ``cols`` only those landmarks are (re)computed into ``out``."""
         a, b, w = self.a, self.b, self.w
         if cols is not None:
@@ -255,7 +305,7 @@ class Correspondences:
         return out
 
     def gather_coordinates(self, rows: np.ndarray, cols=None, out=None) -> np.ndarray:
-        """Like :meth:`gather_static` for coordinate-major rows ``(3, R, k)`` -> ``(N, 3, 68, k)``
+        """Like :meth:`gather_static` for coordinate-major rows ``(3, R, k)`` -> ``(N, 3, L, k)``
         (all three coordinates in one pass); with ``cols`` only those landmarks, into ``out``."""
         a, b, w = self.a, self.b, self.w
         if cols is not None:
@@ -276,7 +326,7 @@ class Correspondences:
         return out
 
     def vertex_ids(self, bank: LandmarkBank) -> np.ndarray:
-        """(N, 68) the nearest model vertex of each correspondence, -1 where none."""
+        """(N, L) the nearest model vertex of each correspondence, -1 where none."""
         r = np.where(self.w < 0.5, self.a, self.b)
         return np.where(self.defined, bank.vertex_ids[np.maximum(r, 0)], -1)
 
@@ -327,28 +377,28 @@ def outline_points(bank: LandmarkBank, view) -> list:
 
 def across_outline(residuals, tangents):
     """Residuals (..., 2) without their component along the outline: ``tangents`` (..., 2) are
-    unit for jaw points (from :func:`slide_contours`) and 0 for the others."""
+    unit for outline points (from :func:`slide_contours`) and 0 for the others."""
     return residuals - tangents * (residuals * tangents).sum(-1, keepdims=True)
 
 
 def slide_contours(bank: LandmarkBank, corr: Correspondences, outlines, projected, landmarks,
                    mask):
-    """Re-pick the jaw correspondences in place: each jaw landmark takes the nearest point
+    """Re-pick the outline correspondences in place: each outline landmark takes the nearest point
     of its side's projected outline, and its target moves along the outline to that point.
 
     Parameters
     ----------
-    outlines : per polyline, ``(a, b, w)`` (N, L) from :func:`outline_points`
-    projected : per polyline, (N, L, 2) pixels, those outline points projected with the fit
-    landmarks : (N, 68, 2) pixels
-    mask : (N, 68) bool, given landmarks (others keep no correspondence)
+    outlines : per polyline, ``(a, b, w)`` (N, M) from :func:`outline_points`, M outline lines
+    projected : per polyline, (N, M, 2) pixels, those outline points projected with the fit
+    landmarks : (N, L, 2) pixels
+    mask : (N, L) bool, given landmarks (others keep no correspondence)
 
     Returns
     -------
-    targets : (N, 68, 2) ``landmarks`` with each given jaw point moved along the outline to
+    targets : (N, L, 2) ``landmarks`` with each given outline point moved along the outline to
         its outline point, the nearer end of the nearest outline segment (a correspondence
         interpolates two rows; the lines are ``OUTLINE_STEP_MM`` apart)
-    tangents : (N, 68, 2) unit directions of those segments at the given jaw points, 0
+    tangents : (N, L, 2) unit directions of those segments at the given outline points, 0
         elsewhere: a fit counts only the residual across them
     """
     targets = np.array(landmarks, dtype=np.float64, copy=True)

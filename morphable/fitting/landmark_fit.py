@@ -1,17 +1,21 @@
-"""Fit identity, expressions and cameras to 2D iBUG-68 landmarks of one or more images.
+"""Fit identity, expressions and cameras to 2D landmarks of one or more images.
+
+The landmarks follow a :class:`~morphable.fitting.schemes.LandmarkScheme`: iBUG-68, the face
+mesh's 478 points, or any other set of points on the model's surface, some of them outline
+points that slide (iBUG-68's jaw, the face mesh's oval).
 
 Steps (each a module of this package, usable alone):
 
 1. linear pose: a scaled orthographic camera from the 2D points and the model's mean
    landmarks (:func:`~morphable.fitting.pose.estimate_affine_pose`);
-2. jaw correspondences: each 2D jaw point takes the nearest point of the face's projected
-   outline — the jaw line where it faces the camera, else the cheek's silhouette, at any
-   height — and only its distance across the outline counts
+2. outline correspondences: each 2D outline point takes the nearest point of the face's
+   projected outline — the jaw line where it faces the camera, else the cheek's silhouette,
+   at any height — and only its distance across the outline counts
    (:mod:`~morphable.fitting.sliding`, :func:`~morphable.fitting.correspondences.slide_contours`);
    re-picked every round and every second nonlinear iteration;
 3. closed-form solves for identity, then expression, under the Gaussian prior
    (:mod:`~morphable.fitting.linear`); steps 1 to 3 run ``n_linear`` times
-   (:mod:`~morphable.fitting.linear_stage`; once where no jaw point is given and step 4
+   (:mod:`~morphable.fitting.linear_stage`; once where no outline point is given and step 4
    follows: with nothing to re-pick, later rounds would only alternate pose and shape, which
    step 4 does jointly);
 4. joint Levenberg-Marquardt over rotation (axis-angle increments, no gimbal lock),
@@ -33,7 +37,7 @@ Cost (per fit)::
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
 with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
-``prior_weight = 1`` (for jaw points ``uv - y`` is its component across the outline; for
+``prior_weight = 1`` (for outline points ``uv - y`` is its component across the outline; for
 blendshape weights ``expression_weight`` is multiplied by
 :func:`~morphable.fitting.noise.expression_precision`, E / 6 for E blendshapes). Only the
 landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
@@ -51,44 +55,49 @@ import numpy as np
 from ..threads import single_blas_thread
 from .correspondences import landmark_bank
 from .linear_stage import linear_stage
-from .noise import DEFINITION_STD_MM, MODEL_STD_MM
+from .noise import MODEL_STD_MM
 from .noise_estimation import AUTO_ROUNDS, estimate_landmark_std
 from .nonlinear import lm_stage
 from .options import FitOptions
 from .problem import Problem, as_frames
 from .result import FitResult, fit_result
 from .rows import residuals
+from .schemes import fit_scheme
 from .sliding import slide
 
 __all__ = ["fit_landmarks"]
 
 
 @single_blas_thread()
-def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=None,
+def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "affine", mask=None,
                   n_iterations: int = 4, n_linear: int = 3, n_identity=None, n_expression=None,
                   prior_weight: float = 1.0, expression_weight: float = 1.0, robust=None,
                   huber_k: float = 1.345, shared_identity: bool = True,
                   landmark_std_px=1.0, model_std_mm=MODEL_STD_MM,
-                  definition_std_mm=DEFINITION_STD_MM, focal_px=None,
+                  definition_std_mm=None, focal_px=None,
                   contour: str = "slide", dtype=np.float64) -> FitResult:
-    """Fit a morphable model to 2D iBUG-68 landmarks of one or more images.
+    """Fit a morphable model to 2D landmarks of one or more images.
 
     Parameters
     ----------
     model : MorphableModel or str
-        A model with an iBUG-68 mapping (``landmark_ids``); a name is loaded with ``load_model``.
-    landmarks : (68, 2) or (N, 68, 2) array-like, pixels
+        A name is loaded with ``load_model``.
+    landmarks : (L, 2) or (N, L, 2) array-like, pixels
         0-based image coordinates (x right, y down); NaN rows are missing points.
     image_size : (W, H) or (N, 2), pixels
+    scheme : LandmarkScheme, optional
+        What the L landmarks are (:mod:`~morphable.fitting.schemes`); None: by their count,
+        68 iBUG-68 (the model's ``landmark_ids``), 478 the face mesh's points (the model's
+        ``facemesh478`` sidecar).
     camera : {"affine", "perspective"}
         Scaled orthographic or pinhole camera (fixed focal ``focal_px``, default ``max(W, H)``).
-    mask : (68,) or (N, 68) bool, optional
+    mask : (L,) or (N, L) bool, optional
         False excludes a landmark (in addition to NaN rows).
     n_iterations : int
         Levenberg-Marquardt iterations after the linear stage (0 = linear fit only).
     n_linear : int
-        Rounds of pose / jaw / identity / expression linear solves (at most one where no
-        frame gives a jaw point and ``n_iterations > 0``).
+        Rounds of pose / outline / identity / expression linear solves (at most one where no
+        frame gives an outline point and ``n_iterations > 0``).
     n_identity, n_expression : int or None
         Fit only the first modes (None = all).
     prior_weight, expression_weight : float >= 0
@@ -110,12 +119,13 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
         The model's per-frame landmark error (mm), or per frame; for landmarks a detector
         found, :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (``morphable fit`` uses it
         for detected frames).
-    definition_std_mm : float or (68,) array
+    definition_std_mm : None, float or (L,) array
         Standard deviation (mm, per coordinate) of each landmark's definition error, one 3D
         offset shared by all frames of a subject (see :mod:`~morphable.fitting.noise`); 0 = none.
-        Default :data:`~morphable.fitting.noise.DEFINITION_STD_MM`, largest for the eyebrows.
+        None: the scheme's (iBUG-68: :data:`~morphable.fitting.noise.DEFINITION_STD_MM`,
+        largest for the eyebrows).
     contour : {"slide", "fixed"}
-        "slide": jaw points correspond to the face's outline, re-picked at every iteration
+        "slide": outline points correspond to the face's outline, re-picked at every iteration
         (:mod:`~morphable.fitting.correspondences`); "fixed": to fixed vertices, if any.
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
 
@@ -152,13 +162,15 @@ def fit_landmarks(model, landmarks, image_size, *, camera: str = "affine", mask=
                          definition_std_mm=definition_std_mm, focal_px=focal_px,
                          contour=contour, dtype=dtype)
     y, given, size = as_frames(landmarks, mask, image_size)
-    # the model's landmark rows are prepared once per model and process: not part of a fit's time
+    # the scheme and the model's landmark rows are prepared once per model, scheme and
+    # process: not part of a fit's time
     t_bank = time.perf_counter()
-    bank = landmark_bank(model, slide=options.contour == "slide")
+    bank = landmark_bank(model, fit_scheme(model, y.shape[1], scheme),
+                         slide=options.contour == "slide")
     t0 += time.perf_counter() - t_bank
     pb = Problem(model, bank, options, y, given, size)
     with np.errstate(all="ignore"):
-        # with no jaw point to re-pick, later linear rounds would only alternate pose and
+        # with no outline point to re-pick, later linear rounds would only alternate pose and
         # shape, which the nonlinear stage does jointly (same accuracy, a third less time)
         rounds = options.n_linear
         if pb.sliding is None and options.n_iterations:

@@ -1,10 +1,10 @@
-"""The linear stage of a landmark fit: pose, jaw correspondences, identity and expression.
+"""The linear stage of a landmark fit: pose, outline correspondences, identity and expression.
 
 Each round estimates a scaled orthographic camera from the 2D points and the current model
 points (:func:`~morphable.fitting.pose.estimate_affine_pose`; the first from the fixed
-landmarks of the mean face), re-picks the jaw correspondences (:mod:`~morphable.fitting.sliding`)
-and solves for the identity, then the expression, in closed form under the Gaussian prior
-(:mod:`~morphable.fitting.linear`).
+landmarks of the mean face), re-picks the outline correspondences
+(:mod:`~morphable.fitting.sliding`) and solves for the identity, then the expression, in
+closed form under the Gaussian prior (:mod:`~morphable.fitting.linear`).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ __all__ = ["linear_stage"]
 
 
 def linear_stage(pb: Problem, n_linear: int) -> State:
-    """The start of a fit: ``n_linear`` rounds (at least one pose) of the affine pose, the jaw
+    """The start of a fit: ``n_linear`` rounds (at least one pose) of the affine pose, the outline
     correspondences and the identity and expression solves; a pinhole fit then takes the
     affine fit's image scale at the landmarks' centroid."""
     # the linear stage works with the affine camera; a pinhole fit starts from it

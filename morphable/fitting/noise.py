@@ -16,9 +16,10 @@ camera's distance, and offsets of a fixed size in mm would be cheaper on a small
 with them, shared fits came out 10-15 % smaller than the same frames fitted alone. A single
 frame, or an independent fit per frame, cannot tell the offset from per-frame error; there
 it only adds its variance: ``s^2 += (k definition_std_mm)^2``, exactly what marginalising it
-gives. Sliding jaw points get no offset (they are defined by the outline they slide on). The
-default ``definition_std_mm`` differs per landmark group (:data:`DEFINITION_STD_MM`: eyebrows
-4.2 mm, nose base 1.6 mm...).
+gives. Sliding outline points get no offset (they are defined by the outline they slide on).
+The default ``definition_std_mm`` is the landmark scheme's
+(:attr:`~morphable.fitting.schemes.LandmarkScheme.definition_std_mm`); for iBUG-68 it differs
+per landmark group (:data:`DEFINITION_STD_MM`: eyebrows 4.2 mm, nose base 1.6 mm...).
 
 A fit's data weight of a landmark is ``1 / s^2`` with ``s^2 = landmark_std_px^2 + (k
 model_std_mm)^2`` (plus ``(k definition_std_mm)^2`` where no offset carries the definition
@@ -45,7 +46,7 @@ def _definition_profile() -> np.ndarray:
 
 
 DEFINITION_STD_MM = _definition_profile()
-"""(68,) default ``definition_std_mm``, mm per coordinate: how far a landmark's annotation
+"""(68,) iBUG-68's ``definition_std_mm``, mm per coordinate: how far a landmark's annotation
 typically lies from the model's landmark vertex, per group (the eyebrows are the least well
 defined): the per-coordinate RMS of the ICT FaceKit landmark vertices against SFM fits of the
 same faces, 6 subjects, rounded (``python -m evaluation.landmark_definitions --synthetic-scan
@@ -90,7 +91,7 @@ def frame_model_std(detected) -> np.ndarray:
 
 
 def model_variance(pb, st, depth=None):
-    """(N, 68) px^2: the model's part of each landmark's variance, (k model_std_mm)^2 plus,
+    """(N, L) px^2: the model's part of each landmark's variance, (k model_std_mm)^2 plus,
     where no offset carries it, (k definition_std_mm)^2 (k the image scale in px/mm)."""
     scale = st.k
     if pb.perspective and depth is not None:
@@ -101,6 +102,6 @@ def model_variance(pb, st, depth=None):
 
 
 def weights(pb, st, depth=None):
-    """(N, 68) data weights 1/s^2 (0 for unused landmarks)."""
+    """(N, L) data weights 1/s^2 (0 for unused landmarks)."""
     s2 = np.asarray(pb.landmark_std_px)[..., None] ** 2 + model_variance(pb, st, depth)
     return np.where(pb.mask & st.corr.defined, 1.0 / s2, 0.0)

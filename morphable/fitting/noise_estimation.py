@@ -42,7 +42,7 @@ def effective_parameters(pb: Problem, st: State) -> np.ndarray:
 def estimate_landmark_std(pb: Problem, st: State, floor_px: float = 0.25) -> np.ndarray:
     """(N,) px: per group of frames, the landmark noise at which the normalised residuals add
     up to their degrees of freedom, ``sum r^2 / (sigma^2 + model variance) = n - gamma``
-    (n residual coordinates, one per jaw point as only its distance across the outline
+    (n residual coordinates, one per outline point as only its distance across the outline
     counts; gamma from :func:`effective_parameters`). Never below ``floor_px``."""
     _, _, _, _, depth, r = residuals(pb, st, False)
     used = pb.mask & st.corr.defined

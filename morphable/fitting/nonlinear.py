@@ -23,7 +23,7 @@ __all__ = ["lm_stage", "normal_equations"]
 
 
 def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
-    """Up to ``n_iterations`` Levenberg-Marquardt iterations from ``st``, re-picking the jaw
+    """Up to ``n_iterations`` Levenberg-Marquardt iterations from ``st``, re-picking the outline
     correspondences every ``slide_every``-th -> (state, iterations run)."""
     N, K, E = pb.N, pb.K, pb.E
     G = 1 if pb.shared else N
@@ -87,7 +87,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
 def normal_equations(pb: Problem, st: State):
     """Gauss-Newton blocks at the current state, priors included: per frame Hff (N, Pf, Pf)
     and gf over rotation, translation, scale (affine) and expressions; Hfa (N, Pf, K) to the
-    shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, 68), the group
+    shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, L), the group
     costs (G,) and the expression bound's active set (N, Pf)."""
     N, K, E = pb.N, pb.K, pb.E
     n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
@@ -96,7 +96,8 @@ def normal_equations(pb: Problem, st: State):
     X, uv, Xc, Jp, depth, r = residuals(pb, st, True)
     W = _robust(pb, weights(pb, st, depth), r)
     cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
-    # Jacobian rows coordinate-major: the 68 x residuals, then the 68 y residuals
+    # Jacobian rows coordinate-major: the L x residuals, then the L y residuals
+    L2 = 2 * r.shape[1]
     RX = Xc - st.t[:, None]
     blocks = [cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
     if n_rho:
@@ -106,11 +107,11 @@ def normal_equations(pb: Problem, st: State):
     JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
     if E:
         blocks.append(project_rows(JpR, st.rows[2]))
-    Jf = _across_rows(pb, np.concatenate(blocks, -1)).reshape(N, 136, Pf)
-    Ja4 = _across_rows(pb, project_rows(JpR, shared_rows(pb, st)))    # (N, 2, 68, K)
-    Ja = Ja4.reshape(N, 136, K)
+    Jf = _across_rows(pb, np.concatenate(blocks, -1)).reshape(N, L2, Pf)
+    Ja4 = _across_rows(pb, project_rows(JpR, shared_rows(pb, st)))    # (N, 2, L, K)
+    Ja = Ja4.reshape(N, L2, K)
     w2 = np.concatenate([W, W], 1)[..., None]
-    rr = r.transpose(0, 2, 1).reshape(N, 136)
+    rr = r.transpose(0, 2, 1).reshape(N, L2)
     WJf, WJa = w2 * Jf, w2 * Ja
     Hff = Jf.transpose(0, 2, 1) @ WJf
     gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
@@ -137,8 +138,8 @@ def normal_equations(pb: Problem, st: State):
 
 
 def _across_rows(pb: Problem, J):
-    """The same projection for coordinate-major Jacobian rows (N, 2, 68, P), in place, on the
-    jaw slice only."""
+    """The same projection for coordinate-major Jacobian rows (N, 2, L, P), in place, on the
+    sliding columns only."""
     if pb.sliding is None:
         return J
     t = pb.tangent[:, pb.sliding].transpose(0, 2, 1)[..., None]      # (N, 2, J, 1)

@@ -4,16 +4,16 @@
 keyword arguments (their meaning is documented there). Settings alone are checked when the
 options are made; the checks that need the frames or the model are the methods that resolve
 a setting for them (:meth:`FitOptions.frame_model_std`, :meth:`FitOptions.modes`,
-:meth:`FitOptions.focal`).
+:meth:`FitOptions.focal`, :meth:`FitOptions.landmark_definition_std`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InputError
-from .noise import DEFINITION_STD_MM, MODEL_STD_MM
+from .noise import MODEL_STD_MM
 
 __all__ = ["FitOptions"]
 
@@ -23,7 +23,8 @@ class FitOptions:
     """The settings of :func:`~morphable.fitting.landmark_fit.fit_landmarks`, with its defaults.
 
     Raises InputError for a malformed setting. After validation ``model_std_mm`` and
-    ``definition_std_mm`` are float64 arrays ((), (N,) or (68,)) and ``dtype`` a numpy dtype.
+    ``definition_std_mm`` are float64 arrays ((), (N,) or (L,)), or ``definition_std_mm``
+    None (the landmark scheme's), and ``dtype`` a numpy dtype.
     """
 
     camera: str = "affine"
@@ -38,7 +39,7 @@ class FitOptions:
     shared_identity: bool = True
     landmark_std_px: float | str = 1.0
     model_std_mm: object = MODEL_STD_MM
-    definition_std_mm: object = field(default_factory=lambda: DEFINITION_STD_MM)
+    definition_std_mm: object = None
     focal_px: object = None
     contour: str = "slide"
     dtype: object = np.float64
@@ -54,14 +55,14 @@ class FitOptions:
         if auto and self.landmark_std_px != "auto":
             raise InputError(f"landmark_std_px: expected a number or 'auto', got "
                              f"{self.landmark_std_px!r}")
-        definition_std_mm = np.asarray(self.definition_std_mm, dtype=np.float64)
-        if definition_std_mm.shape not in ((), (68,)):
-            raise InputError(f"definition_std_mm: expected a number or 68 numbers, got shape "
-                             f"{definition_std_mm.shape}")
+        definition_std_mm = (None if self.definition_std_mm is None
+                             else np.asarray(self.definition_std_mm, dtype=np.float64))
         for name, v in (("prior_weight", self.prior_weight),
                         ("expression_weight", self.expression_weight),
                         ("landmark_std_px", 1.0 if auto else self.landmark_std_px),
-                        ("model_std_mm", self.model_std_mm), ("definition_std_mm", definition_std_mm),
+                        ("model_std_mm", self.model_std_mm),
+                        ("definition_std_mm",
+                         0.0 if definition_std_mm is None else definition_std_mm),
                         ("huber_k", self.huber_k)):
             if not (np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)):
                 raise InputError(f"{name}: must be finite and >= 0, got {v}")
@@ -97,6 +98,18 @@ class FitOptions:
             raise InputError(f"model_std_mm: expected a number or one per frame ({n_frames}), "
                              f"got shape {self.model_std_mm.shape}")
         return np.broadcast_to(self.model_std_mm, (n_frames,))
+
+    def landmark_definition_std(self, scheme) -> np.ndarray:
+        """(L,) ``definition_std_mm`` of each landmark of ``scheme``, mm (a read-only view):
+        the scheme's own where None."""
+        if self.definition_std_mm is None:
+            view = scheme.definition_std_mm.view()
+            view.flags.writeable = False
+            return view
+        if self.definition_std_mm.shape not in ((), (scheme.n,)):
+            raise InputError(f"definition_std_mm: expected a number or {scheme.n} numbers, got "
+                             f"shape {self.definition_std_mm.shape}")
+        return np.broadcast_to(self.definition_std_mm, (scheme.n,))
 
     def modes(self, model) -> tuple[int, int]:
         """(K, E): the identity and expression modes of ``model`` the fit solves for."""

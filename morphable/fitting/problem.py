@@ -18,21 +18,21 @@ __all__ = ["Problem", "State", "as_frames", "group_index", "group_sum"]
 
 
 def as_frames(landmarks, mask, image_size):
-    """Validate a fit's data: ``landmarks`` (68, 2) or (N, 68, 2) px (NaN rows missing),
-    ``mask`` None or (68,) or (N, 68) bool, ``image_size`` (W, H) or (N, 2) px -> ``y``
-    (N, 68, 2), ``given`` (N, 68) bool, ``size`` (N, 2) float64. InputError if malformed."""
-    y, given = as_landmarks(landmarks, "landmarks")
+    """Validate a fit's data: ``landmarks`` (L, 2) or (N, L, 2) px (NaN rows missing),
+    ``mask`` None or (L,) or (N, L) bool, ``image_size`` (W, H) or (N, 2) px -> ``y``
+    (N, L, 2), ``given`` (N, L) bool, ``size`` (N, 2) float64. InputError if malformed."""
+    y, given = as_landmarks(landmarks, "landmarks", n=None)
     if y.ndim == 2:
         y, given = y[None], given[None]
     if y.ndim != 3:
-        raise InputError(f"landmarks: expected (68, 2) or (N, 68, 2), got {np.shape(landmarks)}")
-    N = y.shape[0]
+        raise InputError(f"landmarks: expected (L, 2) or (N, L, 2), got {np.shape(landmarks)}")
+    N, L = y.shape[:2]
     if N == 0:
         raise InputError("landmarks: no frames given")
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
-        if m.shape not in ((68,), (N, 68)):
-            raise InputError(f"mask: expected (68,) or ({N}, 68) booleans, got {m.shape}")
+        if m.shape not in ((L,), (N, L)):
+            raise InputError(f"mask: expected ({L},) or ({N}, {L}) booleans, got {m.shape}")
         given = given & np.broadcast_to(m, given.shape)
     size = np.asarray(image_size, dtype=np.float64)
     if size.shape == (2,):
@@ -46,11 +46,14 @@ def as_frames(landmarks, mask, image_size):
 class Problem:
     """Fixed data of a fit: landmarks, weights, sizes and settings.
 
-    Made from the model, its landmark rows
-    (:func:`~morphable.fitting.correspondences.landmark_bank`), the validated settings and the frames of :func:`as_frames` (``y`` (N, 68, 2) px, ``given``
-    (N, 68) bool, ``size`` (N, 2) px); checks the settings against them (InputError) and
-    raises FitError for a frame with fewer than 4 usable landmarks (given and defined on the
-    model). ``mask`` (N, 68) holds the usable ones.
+    Made from the model, its landmark rows for the scheme of the landmarks
+    (:func:`~morphable.fitting.correspondences.landmark_bank`), the validated settings and
+    the frames of :func:`as_frames` (``y`` (N, L, 2) px, ``given`` (N, L) bool, ``size``
+    (N, 2) px); checks the settings against them (InputError) and raises FitError for a
+    frame with fewer than 4 usable landmarks (given and defined on the model). ``mask``
+    (N, L) holds the usable ones. ``sliding`` are the landmarks whose rows are re-gathered
+    when the outline moves (the outline landmarks; None where no frame gives one): a slice
+    where they are consecutive, but for the chin (iBUG-68's 0-16), else indices.
     """
 
     def __init__(self, model, bank, options: FitOptions, y, given, size):
@@ -65,8 +68,9 @@ class Problem:
                            f"(given and defined on model {model.name}), need at least 4")
         self.model, self.options, self.given, self.size = model, options, given, size
         self.bank, self.y, self.mask, self.principal = bank, y, mask, (size - 1) / 2.0
-        # the given landmarks; ``y`` holds the jaw targets moved along the outline, ``tangent``
-        # the outline's direction at each jaw point (0 elsewhere): only residuals across count
+        # the given landmarks; ``y`` holds the outline targets moved along the outline,
+        # ``tangent`` the outline's direction at each outline point (0 elsewhere): only
+        # residuals across count
         self.y_obs = y
         self.tangent = np.zeros_like(y)
         self.focal, self.perspective, self.K, self.E = focal, options.perspective, K, E
@@ -81,24 +85,22 @@ class Problem:
         # identity for several frames it gets its own coefficients (a 3D offset per landmark,
         # N(0, definition_std_mm^2) per coordinate), appended to the identity's; alone, a frame
         # cannot tell it from noise and it only widens the landmark's variance
-        definition_std_mm = np.broadcast_to(options.definition_std_mm, (y.shape[1],))
+        definition_std_mm = options.landmark_definition_std(bank.scheme)
         self.offsets = bool(self.shared and self.N > 1 and np.any(definition_std_mm > 0))
         self.n_identity = K
         sliding = [int(j) for lms, _ in bank.polylines for j in lms]
         self.sliding_landmarks = np.asarray(sliding, dtype=np.int64)
-        # sliding jaw points are defined by the outline they slide on: no offset
+        # sliding outline points are defined by the outline they slide on: no offset
         self.offset_landmarks = np.setdiff1d(np.arange(y.shape[1]), sliding)
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
         self.prior = np.r_[np.full(K, self.prior_weight), np.ones(self.D)]
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
-        # one slice over the jaw (fixed points inside it are re-gathered unchanged): slices
-        # copy much faster than index lists into the (N, 3, 68, K) rows. None where no frame
-        # gives an outline point (51-point annotations, detectors that drop the jaw): then
-        # nothing slides and the outline is never computed
+        # None where no frame gives an outline point (51-point annotations, detectors that
+        # drop the jaw): then nothing slides and the outline is never computed
         slides = bool(sliding) and bool(mask[:, sliding].any())
-        self.sliding = slice(min(sliding), max(sliding) + 1) if slides else None
+        self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
         # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
         # with the Huber loss, offsets or a definition error that differs between landmarks
         fixed_std = self.frame_def_std[bank.fixed_row >= 0]
@@ -107,6 +109,15 @@ class Problem:
                      if self.robust is None and K and not self.offsets and uniform else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
+
+
+def _sliding_columns(sliding, chin):
+    # one slice over the jaw, the chin inside it re-gathered unchanged: slices copy much
+    # faster than index lists into the (N, 3, L, K) rows
+    lo, hi = min(sliding), max(sliding) + 1
+    if set(range(lo, hi)) <= set(sliding) | {chin}:
+        return slice(lo, hi)
+    return np.asarray(sorted(sliding), dtype=np.int64)
 
 
 class State:

@@ -27,12 +27,13 @@ class FitResult:
     expression : (N, E) float64, per-frame expression coefficients
     cameras : list of N :class:`morphable.camera.Camera`
     landmark_rmse_px : (N,) float64, RMS distance (px) between the given landmarks and the
-        projections of their model points (jaw points: the distance across the fitted
+        projections of their model points (outline points: the distance across the fitted
         outline), over the landmarks used by the fit
-    landmarks : (N, 68, 2) the input pixels (NaN where missing)
-    fitted_landmarks : (N, 68, 2) projected model points (jaw points: the foot of the given
-        point on the projected outline; NaN where unused)
-    landmark_vertices : (N, 68) int, nearest model vertex of each used landmark, -1 if unused
+    landmarks : (N, L, 2) the input pixels (NaN where missing), L the landmarks of the
+        scheme fitted
+    fitted_landmarks : (N, L, 2) projected model points (outline points: the foot of the
+        given point on the projected outline; NaN where unused)
+    landmark_vertices : (N, L) int, nearest model vertex of each used landmark, -1 if unused
     shared_identity : bool
     iterations : int, nonlinear iterations run
     runtime_ms : float, wall time of the fit (without the once-per-model preparation of its
@@ -84,9 +85,27 @@ class FitResult:
         """(V, 3) mm: the identity without expression (the per-frame average when not shared)."""
         return self.model.vertices(self.identity, None, dtype=dtype or self.dtype)
 
+    def landmarks_68_px(self) -> np.ndarray:
+        """(N, 68, 2) 0-based px: the fitted face's iBUG-68 landmarks in each frame, whatever
+        landmark set was fitted, so that any benchmark can compare a fit with 68-point ground
+        truth; NaN where the model has no such point (SFM's inner mouth corners).
+
+        The rule is :func:`~morphable.fitting.synthetic.simulate_landmarks`' on the fitted face
+        and camera: fixed points (the chin among them) are projected, jaw points lie on the
+        face's outline at the heights where a detector puts them (evenly spaced along the jaw
+        line from the outer eye corners' height down to the chin; on the cheek's silhouette
+        where the jaw line turns away)."""
+        from .synthetic import simulate_landmarks
+
+        return np.stack([simulate_landmarks(self.model, cam, vertices=self.vertices(i, np.float64))
+                         for i, cam in enumerate(self.cameras)])
+
     def to_dict(self, images=None) -> dict:
-        """JSON-ready report: model, per-frame pose and residual, identity, iterations, runtime."""
+        """JSON-ready report: model, per-frame pose and residual, the fitted face's projected
+        iBUG-68 landmarks (``landmarks_68_px``, 68 x [x, y] px or null where the model has no
+        such point), identity, iterations, runtime."""
         images = list(images) if images is not None else [None] * self.n_frames
+        lm68 = self.landmarks_68_px()
         frames = []
         for i, cam in enumerate(self.cameras):
             yaw, pitch, roll = (float(a) for a in cam.euler_deg)
@@ -97,7 +116,9 @@ class FitResult:
                  "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll,
                  "translation": [float(x) for x in cam.translation], "camera": cam.kind,
                  "image_size": list(cam.image_size),
-                 "expression": {n: float(v) for n, v in zip(self.model.expression_names, self.expression[i])}}
+                 "expression": {n: float(v) for n, v in zip(self.model.expression_names, self.expression[i])},
+                 "landmarks_68_px": [[float(x), float(y)] if np.isfinite(x + y) else None
+                                     for x, y in lm68[i]]}
             if cam.kind == "affine":
                 f["scale"] = float(cam.scale)
             else:
@@ -114,7 +135,7 @@ class FitResult:
 def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
     """The :class:`FitResult` of a finished fit: its :class:`~morphable.fitting.problem.Problem`
     ``pb`` and final :class:`~morphable.fitting.problem.State` ``st``, the nonlinear
-    iterations run, and the final residuals ``r`` (N, 68, 2) px and depths (N, 68) mm
+    iterations run, and the final residuals ``r`` (N, L, 2) px and depths (N, L) mm
     (:func:`~morphable.fitting.rows.residuals`). FitError for a non-finite fit, or a pinhole
     fit with landmarks behind the camera."""
     used = pb.mask & st.corr.defined
@@ -137,7 +158,7 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                            image_size=(W_, H_), principal=pb.principal[i]))
     K, y = pb.n_identity, pb.y_obs
     frame_alpha = np.broadcast_to(st.alpha[:, :K], (pb.N, K)).copy()
-    # jaw points: the foot of the landmark on the fitted outline (the target moved along it)
+    # outline points: the foot of the landmark on the fitted outline (the target moved along it)
     fitted = np.where(used[..., None], y + r, np.nan)
     return FitResult(model=pb.model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
                      expression=st.beta.copy(), cameras=cams, landmark_rmse_px=rmse,

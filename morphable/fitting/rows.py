@@ -1,10 +1,11 @@
 """The model rows of a fit's correspondences, and the points and residuals they give.
 
 Only the landmark rows of the model (:class:`~morphable.fitting.correspondences.LandmarkBank`)
-are evaluated, never the full mesh. Rows are gathered coordinate-major, (N, 3, 68, k) for
-``k`` coefficients, so that projecting them is one matrix product per frame. The shared
-coefficients are the identity's, then (with a shared identity and a definition error) the
-landmark offsets of :mod:`~morphable.fitting.noise`, which scale with the face's size.
+are evaluated, never the full mesh. Rows are gathered coordinate-major, (N, 3, L, k) for L
+landmarks and ``k`` coefficients, so that projecting them is one matrix product per frame.
+The shared coefficients are the identity's, then (with a shared identity and a definition
+error) the landmark offsets of :mod:`~morphable.fitting.noise`, which scale with the face's
+size.
 ``pb``, ``st``: a fit's :class:`~morphable.fitting.problem.Problem` and
 :class:`~morphable.fitting.problem.State`.
 """
@@ -48,19 +49,21 @@ def size_direction(bank, K) -> np.ndarray:
     return np.einsum("li,lik->k", m, A) / (m * m).sum()
 
 
-def fixed_gram(bank, K, jaw):
-    """(fixed landmarks, jaw slice, G (3, 3, K, K)): Gram blocks of the identity rows of the
-    fixed landmarks outside the jaw slice, cached per model and K (see
-    ``linear.gram_hessian``); landmarks in neither never have a correspondence."""
+def fixed_gram(bank, K, sliding):
+    """(fixed landmarks, sliding columns, G (3, 3, K, K)): Gram blocks of the identity rows of
+    the fixed landmarks outside the ``sliding`` columns (a slice, indices or None;
+    ``Problem.sliding``), cached per model, scheme and K (see ``linear.gram_hessian``);
+    landmarks in neither never have a correspondence."""
     cache = _GRAMS.setdefault(bank, {})
-    jaw = jaw if jaw is not None else slice(0, 0)
-    key = (K, jaw.start, jaw.stop)
+    sliding = sliding if sliding is not None else slice(0, 0)
+    moving = np.arange(len(bank.fixed_row))[sliding]
+    key = (K, moving.tobytes())
     if key not in cache:
         fixed = np.flatnonzero(bank.fixed_row >= 0)
-        fixed = fixed[(fixed < jaw.start) | (fixed >= jaw.stop)]
+        fixed = fixed[~np.isin(fixed, moving)]
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
         G = np.einsum("lik,ljm->ijkm", Af, Af)
-        cache[key] = (fixed, jaw, np.ascontiguousarray(G))
+        cache[key] = (fixed, sliding, np.ascontiguousarray(G))
     return cache[key]
 
 
@@ -88,7 +91,7 @@ def from_coefficients(pb, c) -> np.ndarray:
 
 
 def offset_rows(pb):
-    """(N, 3, 68, D) coordinate-major rows of the landmark offsets: the i-th landmark of
+    """(N, 3, L, D) coordinate-major rows of the landmark offsets: the i-th landmark of
     ``pb.offset_landmarks`` moves along coordinate a by ``definition_std_mm`` per unit of
     coefficient ``3 i + a``."""
     lms = pb.offset_landmarks
@@ -99,7 +102,7 @@ def offset_rows(pb):
 
 
 def shared_rows(pb, st) -> np.ndarray:
-    """(N, 3, 68, K) derivatives of the landmark points by the shared coefficients: the identity
+    """(N, 3, L, K) derivatives of the landmark points by the shared coefficients: the identity
     rows plus the offsets' growth with the face, then the offset rows times the face's size."""
     A = st.rows[1]
     if not pb.D:
@@ -116,8 +119,8 @@ def shared_rows(pb, st) -> np.ndarray:
 
 
 def gather(pb, st, sliding_only: bool = False):
-    """Gather the mean (N, 68, 3) and the identity and expression rows (N, 3, 68, K|E) of the
-    correspondences; after the first time only the sliding jaw landmarks are redone."""
+    """Gather the mean (N, L, 3) and the identity and expression rows (N, 3, L, K|E) of the
+    correspondences; after the first time only the sliding outline landmarks are redone."""
     c = st.corr
     if sliding_only and st.rows is not None:
         if pb.sliding is not None:
@@ -127,7 +130,7 @@ def gather(pb, st, sliding_only: bool = False):
             for src, dst in zip((pb.AT, pb.BT), (st.rows[1][..., :pb.n_identity], st.rows[2])):
                 c.gather_coordinates(src, pb.sliding, dst)
         return
-    # identity and expression rows coordinate-major, (N, 3, 68, k): projections are one GEMM
+    # identity and expression rows coordinate-major, (N, 3, L, k): projections are one GEMM
     A = c.gather_coordinates(pb.AT)
     if pb.D:
         A = np.concatenate([A, offset_rows(pb)], -1)
@@ -142,7 +145,7 @@ def combine(rows, coeffs):
 
 
 def points(pb, st, sel=slice(None)):
-    """(n, 68, 3) model points of the correspondences of the frames ``sel``, mm."""
+    """(n, L, 3) model points of the correspondences of the frames ``sel``, mm."""
     m, A, B = (r[sel] for r in st.rows)
     X = m
     if pb.K:
@@ -154,7 +157,7 @@ def points(pb, st, sel=slice(None)):
 
 
 def residuals(pb, st, jacobian: bool, sel=slice(None)):
-    """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals (jaw
+    """Model points, projections, camera-frame points, d(uv)/d(Xc), depths, residuals (outline
     points: across the outline only) of the frames ``sel``."""
     every = isinstance(sel, slice) and sel == slice(None)
     if every and st.residuals is not None:

@@ -19,6 +19,7 @@ the two irises' 5 points each), read from a sidecar file: committed for SFM and 
 from __future__ import annotations
 
 import hashlib
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,9 +30,12 @@ from ..ibug68 import JAW, MIRROR
 from .noise import DEFINITION_STD_MM
 
 __all__ = ["LandmarkScheme", "ibug68_scheme", "load_scheme", "save_scheme", "scheme_path",
-           "model_fingerprint", "SCHEME_NAMES", "DATA_DIR"]
+           "model_fingerprint", "fit_scheme", "SCHEME_NAMES", "SCHEME_SIZES", "DATA_DIR"]
 
 SCHEME_NAMES = ("ibug68", "facemesh478")
+
+SCHEME_SIZES = {68: "ibug68", 478: "facemesh478"}
+"""The scheme a fit takes for a number of given landmarks when none is named."""
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 """The committed sidecars (``facemesh478_<model>.npz``)."""
@@ -55,10 +59,10 @@ class LandmarkScheme:
     barycentric : (L, 3) float64
         Weights of the three vertices, rows summing to 1.
     outline_right, outline_left : (J,) int64
-        Landmarks on the subject's right / left face outline (any order): in a fit they slide
-        along the model's outline.
+        Landmarks on the subject's right / left face outline, from the top (about the height
+        of the eyes) down to the chin: in a fit they slide along the model's outline.
     chin : int
-        The chin landmark (slides along the chin line), -1 if none.
+        The chin landmark, -1 if none: in a fit a fixed point that ends both sides' outline.
     definition_std_mm : (L,) float64
         Per-point definition error, mm per coordinate: how far a detector's or annotator's point
         typically lies from the model point.
@@ -126,10 +130,10 @@ class LandmarkScheme:
 
 def ibug68_scheme(model) -> LandmarkScheme:
     """The iBUG-68 scheme of ``model``: its ``landmark_ids`` as fixed points, the jaw points
-    (0-16, chin 8) sliding along the outline, :data:`~morphable.fitting.noise.DEFINITION_STD_MM`
-    as the definition error."""
+    (0-7 and 16-9, top to chin) sliding along the outline, the chin 8 ending it,
+    :data:`~morphable.fitting.noise.DEFINITION_STD_MM` as the definition error."""
     ids = np.asarray(model.landmark_ids, dtype=np.int64)
-    right, left = JAW[JAW < _CHIN], JAW[JAW > _CHIN]
+    right, left = JAW[JAW < _CHIN], JAW[JAW > _CHIN][::-1]
     return LandmarkScheme(
         name="ibug68", model_name=model.name,
         vertices=np.repeat(np.where(ids >= 0, ids, -1)[:, None], 3, 1),
@@ -206,3 +210,30 @@ def load_scheme(model, name: str = "facemesh478", path=None) -> LandmarkScheme:
             mirror=d["mirror"].astype(np.int64), ibug68=d["ibug68"].astype(np.int64))
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
+
+
+# per model: the schemes fits take by landmark count (a fit's landmark rows are cached per scheme)
+_FIT_SCHEMES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def fit_scheme(model, n_landmarks: int, scheme: LandmarkScheme | None = None) -> LandmarkScheme:
+    """The scheme of ``n_landmarks`` given landmarks of ``model``: ``scheme`` when given, else
+    by count (:data:`SCHEME_SIZES`: 68 iBUG-68, 478 the face mesh), made or read once per
+    model. InputError when the count has no scheme, or ``scheme`` has another count or was
+    made for another model."""
+    if scheme is None:
+        name = SCHEME_SIZES.get(int(n_landmarks))
+        if name is None:
+            raise InputError(f"landmarks: {n_landmarks} points, expected "
+                             f"{' or '.join(map(str, SCHEME_SIZES))} or a landmark scheme")
+        per_model = _FIT_SCHEMES.setdefault(model, {})
+        if name not in per_model:
+            per_model[name] = load_scheme(model, name)
+        return per_model[name]
+    if scheme.n != n_landmarks:
+        raise InputError(f"landmarks: {n_landmarks} points for the {scheme.n}-point scheme "
+                         f"{scheme.name!r}")
+    if scheme.model_name != model.name or scheme.vertices.max(initial=-1) >= model.n_vertices:
+        raise InputError(f"landmark scheme {scheme.name!r} was made for model "
+                         f"{scheme.model_name!r}, not {model.name!r}")
+    return scheme

@@ -1,9 +1,9 @@
-"""The sliding jaw correspondences of a fit, re-picked on the face's current outline.
+"""The sliding outline correspondences of a fit, re-picked on the face's current outline.
 
-Every round of the linear stage and every second nonlinear iteration, each 2D jaw point takes
-the nearest point of the face's projected outline — the jaw line where it faces the camera,
-else the cheek's silhouette, at any height — and only its distance across the outline counts
-(:mod:`~morphable.fitting.correspondences`).
+Every round of the linear stage and every second nonlinear iteration, each 2D outline point
+(iBUG-68's jaw, the face mesh's oval) takes the nearest point of the face's projected outline
+— the jaw line where it faces the camera, else the cheek's silhouette, at any height — and
+only its distance across the outline counts (:mod:`~morphable.fitting.correspondences`).
 """
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ __all__ = ["slide"]
 
 
 def slide(pb: Problem, st: State):
-    """Re-pick the jaw correspondences on the current outline, move their targets along it
+    """Re-pick the outline correspondences on the current outline, move their targets along it
     (:func:`~morphable.fitting.correspondences.slide_contours`) and gather their rows anew;
-    nothing where no frame gives a jaw point."""
+    nothing where no frame gives an outline point."""
     bank = pb.bank
     if pb.sliding is None:
         return

@@ -1,26 +1,28 @@
-"""Synthetic 2D landmarks of a model face, placed the way a 68-point detector places them
-(for tests, benchmarks and the evaluation of fitting).
+"""Synthetic 2D landmarks of a model face, placed the way a detector places them (for tests,
+benchmarks and the evaluation of fitting), for any landmark scheme (default iBUG-68).
 
-Fixed landmarks are the projections of their vertices. Jaw points lie on the face's outline
-at fixed heights: on the jaw line, spaced evenly from the height of the outer eye corners
-down to the chin and generally between vertices; where the jaw line faces away from the
-camera (normals of the actual mesh) a point marches along its horizontal line of vertices to
-the first one that faces the camera — the cheek's silhouette, interpolated at the zero of
-the normal's z. The fit (:mod:`morphable.fitting.correspondences`) takes them as points of
-the outline at any height.
+Fixed landmarks are the projections of their surface points. Outline points (iBUG-68's jaw)
+lie on the face's outline at fixed heights: on the jaw line, spaced evenly (in the scheme's
+order, top to chin) from the height of the outer eye corners down to the chin and generally
+between vertices; where the jaw line faces away from the camera (normals of the actual mesh)
+a point marches along its horizontal line of vertices to the first one that faces the
+camera — the cheek's silhouette, interpolated at the zero of the normal's z. The fit
+(:mod:`morphable.fitting.correspondences`) takes them as points of the outline at any height.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .correspondences import (arc_lengths, chain_arc, horizontal_lines, interpolate_arc,
-                              landmark_bank, march_silhouette)
+from .correspondences import (arc_lengths, chain_arc, eye_corner_height, horizontal_lines,
+                              interpolate_arc, landmark_bank, march_silhouette)
+from .schemes import fit_scheme
 
 __all__ = ["simulate_landmarks", "jaw_arc_positions", "expected_jaw_points", "march_lines"]
 
 
-def simulate_landmarks(model, camera, identity=None, expression=None, vertices=None) -> np.ndarray:
-    """Detector-like iBUG-68 landmarks of a model face seen by ``camera``.
+def simulate_landmarks(model, camera, identity=None, expression=None, vertices=None,
+                       scheme=None) -> np.ndarray:
+    """Detector-like landmarks of a model face seen by ``camera``.
 
     Parameters
     ----------
@@ -28,10 +30,11 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     camera : morphable.camera.Camera
     identity, expression : coefficient vectors (see ``MorphableModel.vertices``)
     vertices : (V, 3) mm, optional; overrides the coefficients
+    scheme : LandmarkScheme, optional; None: iBUG-68
 
     Returns
     -------
-    (68, 2) float64 pixels, NaN where the model defines no landmark.
+    (L, 2) float64 pixels, NaN where the model defines no landmark.
 
     Examples
     --------
@@ -45,18 +48,20 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     from ..normals import vertex_normals
 
     verts = model.vertices(identity, expression) if vertices is None else np.asarray(vertices, np.float64)
-    lms = np.full((68, 2), np.nan)
-    fixed = model.landmark_ids >= 0
-    lms[fixed] = camera.project(verts[model.landmark_ids[fixed]])
+    scheme = fit_scheme(model, 68) if scheme is None else scheme
+    lms = np.full((scheme.n, 2), np.nan)
+    fixed = scheme.defined
+    lms[fixed] = camera.project(scheme.points(verts)[fixed])
     normals = vertex_normals(verts, model.triangles) @ camera.rotation.T
-    bank = landmark_bank(model)
+    bank = landmark_bank(model, scheme)
+    eye_y = eye_corner_height(model, scheme)
     for side, chain in bank.polylines:
         chain_ids = bank.vertex_ids[chain]
-        P, arc, at = jaw_arc_positions(model, side, chain_ids, verts)
+        P, arc, at = jaw_arc_positions(model, side, chain_ids, verts, eye_y)
         facing = np.interp(at, arc, normals[chain_ids, 2])
         view = np.array([[0.0, 0.0, 1.0]])         # normals are already in the camera frame
         for j, p, nz, line in zip(side, interpolate_arc(P, arc, at), facing,
-                                  march_lines(model, side, chain_ids)):
+                                  march_lines(model, side, chain_ids, eye_y)):
             if nz < 0:
                 i0, i1, w = (x[0, 0] for x in march_silhouette(line[None], normals[line][None], view))
                 p = (1 - w) * verts[i0] + w * verts[i1]
@@ -64,31 +69,33 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     return lms
 
 
-def jaw_arc_positions(model, lms, chain_ids, vertices):
+def jaw_arc_positions(model, lms, chain_ids, vertices, eye_y):
     """A face's jaw line and where its sliding landmarks sit on it: the chain's points (C, 3)
     in ``vertices``, their cumulative arc lengths (C,) and the landmarks' arc positions (J,),
     mm — :func:`expected_jaw_points` rescaled to this face's jaw line."""
-    _, at, mean_arc = expected_jaw_points(model, lms, chain_ids)
+    _, at, mean_arc = expected_jaw_points(model, lms, chain_ids, eye_y)
     P = np.asarray(vertices, dtype=np.float64)[chain_ids]
     arc = arc_lengths(P)
     return P, arc, at / mean_arc[-1] * arc[-1]
 
 
-def expected_jaw_points(model, lms, chain_ids):
-    """Mean-shape points (J, 3) of the sliding landmarks on their chain, their arc positions
-    (J,) and the chain's cumulative arc lengths (C,), mm.
+def expected_jaw_points(model, lms, chain_ids, eye_y):
+    """Mean-shape points (J, 3) of the sliding landmarks ``lms`` (top to chin) on their
+    chain, their arc positions (J,) and the chain's cumulative arc lengths (C,), mm.
 
-    iBUG jaw point 1 (17) sits at the height of the outer eye corner: the landmarks are
-    evenly spaced by arc length from where the chain passes that height (its top if lower)
-    down to the chin (8)."""
-    P, arc, start = chain_arc(model, chain_ids)
-    frac = (lms if lms[0] < 8 else 16 - lms) / 8.0
+    The first (iBUG jaw point 1 or 17) sits at the height ``eye_y`` of the outer eye corners
+    (:func:`~morphable.fitting.correspondences.eye_corner_height`): the landmarks are evenly
+    spaced by arc length from where the chain passes that height (its top if lower) down to
+    the chin (iBUG 9), which ends the chain."""
+    P, arc, start = chain_arc(model, chain_ids, eye_y)
+    frac = np.arange(len(lms)) / len(lms)
     at = start + frac * (arc[-1] - start)
     return interpolate_arc(P, arc, at), at, arc
 
 
-def march_lines(model, lms, chain_ids, height_mm: float = 3.0, step_mm: float = 3.0) -> list:
+def march_lines(model, lms, chain_ids, eye_y, height_mm: float = 3.0,
+                step_mm: float = 3.0) -> list:
     """Per sliding landmark, its horizontal line of vertices (jaw line inwards) at the height
     where the landmark is expected on the mean shape (:func:`expected_jaw_points`)."""
-    pts, _, _ = expected_jaw_points(model, lms, chain_ids)
+    pts, _, _ = expected_jaw_points(model, lms, chain_ids, eye_y)
     return horizontal_lines(model, pts, chain_ids, height_mm, step_mm)
