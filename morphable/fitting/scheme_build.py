@@ -403,11 +403,13 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     configure(verbosity(args))
     model = load_model(args.model)
-    t0 = time.perf_counter()
-    b = build_scheme(model, args.canonical)
     out = Path(args.out) if args.out else (
         DATA_DIR / f"facemesh478_{model.name}.npz" if model.name in MODELS
         else scheme_path(model, "facemesh478"))
+    if not out.parent.is_dir():  # before the work, not after
+        raise InputError(f"{out}: output folder {out.parent} does not exist")
+    t0 = time.perf_counter()
+    b = build_scheme(model, args.canonical)
     save_scheme(b.scheme, out, model)
     print(f"{out}: {model.name} facemesh478 in {time.perf_counter() - t0:.1f} s; anchors "
           f"RMS {b.anchor_rms_mm:.2f} mm after the similarity, surface points "
