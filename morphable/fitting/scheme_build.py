@@ -42,10 +42,10 @@ from ..errors import InputError, one_line_errors
 from ..io.registry import MODELS
 from .schemes import DATA_DIR, LandmarkScheme, save_scheme, scheme_path
 
-__all__ = ["CANONICAL_OBJ", "N_MESH", "IRISES", "FACE_OVAL", "ANCHOR_IBUG", "read_obj", "canonical_mesh",
-           "ANCHOR_MEDIAPIPE", "anchor_indices", "closest_points", "similarity", "register", "project_to_surface", "mirror_indices",
-           "outline_split", "ibug68_counterparts", "definition_std", "build_scheme", "Build",
-           "main"]
+__all__ = ["CANONICAL_OBJ", "N_MESH", "IRISES", "FACE_OVAL", "ANCHOR_IBUG", "ANCHOR_MEDIAPIPE",
+           "read_obj", "canonical_mesh", "anchor_indices", "closest_points", "similarity",
+           "register", "project_to_surface", "mirror_indices", "outline_split",
+           "ibug68_counterparts", "definition_std", "build_scheme", "Build", "main"]
 
 CANONICAL_OBJ = Path("mediapipe") / "face_model_with_iris.obj"
 """mediapipe's canonical 478-point face mesh (Apache-2.0), looked for under each folder of the
@@ -242,7 +242,8 @@ def mirror_indices(V) -> np.ndarray:
 
     V = np.asarray(V, np.float64)
     d, m = cKDTree(V).query(V * [-1.0, 1.0, 1.0])
-    if not (np.array_equal(np.sort(m), np.arange(len(V))) and np.array_equal(m[m], np.arange(len(V)))
+    ids = np.arange(len(V))
+    if not (np.array_equal(np.sort(m), ids) and np.array_equal(m[m], ids)
             and d.max() < 1e-3 * np.ptp(V, 0).max()):
         raise InputError("canonical mesh: not left-right symmetric (the mirror is no permutation)")
     return m.astype(np.int64)
