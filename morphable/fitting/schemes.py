@@ -106,12 +106,10 @@ class LandmarkScheme:
 
     @property
     def sliding(self) -> np.ndarray:
-        """(L,) bool: landmarks that slide along the outline."""
+        """(L,) bool: landmarks that slide along the outline (the chin, which ends it, does not)."""
         s = np.zeros(self.n, bool)
         s[self.outline_right] = True
         s[self.outline_left] = True
-        if self.chin >= 0:
-            s[self.chin] = True
         return s
 
     @property
