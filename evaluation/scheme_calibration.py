@@ -1,0 +1,204 @@
+"""Calibrate a model's facemesh478 scheme with the detector itself: where does the face mesh put
+each point on a face whose geometry is known, and how far does it stray?
+
+The registration of :mod:`morphable.fitting.scheme_build` places mediapipe's *canonical* mesh
+on the model; the detector's points are defined by its training data, not by that mesh (its
+brow points sit on the brow's edge, its oval on the visible outline...). So: model subjects
+(random identities, neutral) wearing the colours of real photos
+(:func:`evaluation.scans.photo_colors`) are rendered over a range of yaws and pitches; the
+detector runs on each render; every detected fixed point is cast back onto the subject's
+surface (the rasteriser's triangle and barycentric weights at that pixel), which names a point
+of the model's surface. Per point, the mean of those surface points (on the mean shape) becomes
+its new position, and the per-coordinate RMS distance of the hits from it (on each subject's
+own surface) its ``definition_std_mm``. A point is used in a render only where the model point
+is visible there (a hidden point's hit lands on whatever is in front of it). The sliding oval
+points keep their registration (they are defined by the outline) and their definition error.
+
+The photos only lend skin, brows and lips: the geometry is the model's. By default the first 20
+people of the London set (CC BY 4.0; neutral front photos) are used, so that the calibrated
+files carry no research-only data, and the London identity benchmark reports the other 82
+people apart. ::
+
+    python -m evaluation.scheme_calibration --model sfm --out morphable/data/facemesh478_sfm.npz
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from morphable.errors import FitError, InputError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
+
+__all__ = ["VIEWS", "render_subject", "back_project", "calibrate", "main"]
+
+VIEWS = tuple((y, 0.0) for y in (-60, -45, -30, -15, 0, 15, 30, 45, 60)) + ((0.0, -15.0), (0.0, 15.0))
+"""(yaw, pitch) degrees of the calibration renders."""
+
+IMAGE = 512
+
+
+def render_subject(vertices, triangles, colors, yaw, pitch, image_size=IMAGE):
+    """A soft-lit render of a coloured mesh -> (H, W, 3) uint8, its camera and its
+    :class:`~morphable.raster.Visibility`."""
+    from morphable.raster import DirectionalLight, frame_mesh, render, visibility
+
+    cam = frame_mesh(vertices, (image_size, image_size), yaw=yaw, pitch=pitch, margin=0.15)
+    vis = visibility(vertices, triangles, cam)
+    img = render(vertices, triangles, cam, colors=colors, vis=vis,
+                 light=DirectionalLight(direction=(0.2, 0.3, 1.0), color=0.6))
+    return (np.clip(img[..., :3], 0, 1) * 255).round().astype(np.uint8), cam, vis
+
+
+def back_project(points_px, vis):
+    """Detected points (L, 2) px -> the triangle (L,) (-1: background or outside the image)
+    and barycentric weights (L, 3) of the surface each one's pixel shows."""
+    H, W = vis.triangle_id.shape
+    ij = np.round(np.asarray(points_px)[:, ::-1]).astype(np.int64)
+    inside = (ij >= 0).all(1) & (ij[:, 0] < H) & (ij[:, 1] < W)
+    ij = np.where(inside[:, None], ij, 0)
+    tri = np.where(inside, vis.triangle_id[ij[:, 0], ij[:, 1]], -1)
+    return tri, vis.barycentric[ij[:, 0], ij[:, 1]].astype(np.float64)
+
+
+def _visible(points, cam, vis, tol_mm: float = 3.0):
+    """(L,) bool: model points (L, 3) mm in view and not behind the surface (depth test)."""
+    uv = cam.project(points)
+    H, W = vis.triangle_id.shape
+    ij = np.round(uv[:, ::-1]).astype(np.int64)
+    inside = (ij >= 0).all(1) & (ij[:, 0] < H) & (ij[:, 1] < W)
+    ij = np.where(inside[:, None], ij, 0)
+    depth = -cam.to_camera(points)[:, 2]
+    return inside & np.isfinite(points).all(1) & (depth <= vis.depth[ij[:, 0], ij[:, 1]] + tol_mm)
+
+
+def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=VIEWS,
+              detect=None) -> tuple:
+    """Calibrate ``scheme`` (facemesh478 of ``model``) on renders -> (calibrated scheme, report).
+
+    ``looks``: vertex colours (V, 3) in [0, 1] the subjects wear in turn
+    (:func:`evaluation.scans.photo_colors` of photos); ``detect``: (H, W, 3) uint8 image ->
+    (L, 2) px, FitError when it finds no face (default the face mesh). The report holds per
+    point the shift of its position (mm, on the mean shape), its new definition error and how
+    many renders saw it."""
+    from morphable.fitting.scheme_build import project_to_surface
+
+    if detect is None:
+        from morphable.detection import detect_landmarks
+
+        def detect(img):
+            return detect_landmarks(img, landmark_detector="facemesh")
+    rng = np.random.default_rng(seed)
+    tri_all = np.asarray(model.triangles)
+    mean = np.asarray(model.mean, np.float64)
+    fixed = ~scheme.sliding & scheme.defined
+    hits_mean, hits_subj, subj_of = [], [], []     # per sample: (L, 3) mm, NaN where unused
+    subjects, failures, t0 = [], 0, time.perf_counter()
+    for s in range(n_subjects):
+        alpha = rng.standard_normal(model.n_identity)
+        verts = model.vertices(alpha).astype(np.float64)
+        subjects.append(verts)
+        for yaw, pitch in views:
+            img, cam, vis = render_subject(verts, tri_all, looks[s % len(looks)], yaw, pitch)
+            try:
+                pts = detect(img)
+            except FitError:
+                failures += 1
+                continue
+            tri, bary = back_project(pts, vis)
+            ok = fixed & (tri >= 0) & _visible(scheme.points(verts), cam, vis)
+            corners = tri_all[np.maximum(tri, 0)]
+            on_mean = np.einsum("lkc,lk->lc", mean[corners], bary)
+            on_subj = np.einsum("lkc,lk->lc", verts[corners], bary)
+            hits_mean.append(np.where(ok[:, None], on_mean, np.nan))
+            hits_subj.append(np.where(ok[:, None], on_subj, np.nan))
+            subj_of.append(s)
+    if not hits_mean:
+        raise FitError("calibration: the detector found no face in any render")
+    Hm, Hs = np.stack(hits_mean), np.stack(hits_subj)
+    count = np.isfinite(Hm[..., 0]).sum(0)
+    use = fixed & (count >= 5)
+    centre = np.nanmean(Hm[:, use], axis=0)
+    v_new, b_new, _ = project_to_surface(centre, model)
+    vertices, barycentric = scheme.vertices.copy(), scheme.barycentric.copy()
+    vertices[use], barycentric[use] = v_new, b_new
+    std = scheme.definition_std_mm.copy()
+    # spread: each hit against the new point on the same subject's surface
+    new_pts = np.stack([np.einsum("lkc,lk->lc", v[vertices], barycentric) for v in subjects])
+    d = Hs[:, use] - new_pts[np.asarray(subj_of)][:, use]
+    std[use] = np.sqrt(np.nanmean((d ** 2).sum(-1), axis=0) / 3.0)
+    old = scheme.points(mean)
+    calibrated = type(scheme)(
+        name=scheme.name, model_name=scheme.model_name, vertices=vertices, barycentric=barycentric,
+        outline_right=scheme.outline_right, outline_left=scheme.outline_left, chin=scheme.chin,
+        definition_std_mm=std, mirror=scheme.mirror, ibug68=scheme.ibug68)
+    shift = np.linalg.norm(calibrated.points(mean) - old, axis=1)
+    report = {"model": model.name, "subjects": n_subjects, "views": [list(v) for v in views],
+              "renders": len(hits_mean), "no_face": failures,
+              "seconds": time.perf_counter() - t0,
+              "calibrated_points": int(use.sum()),
+              "shift_mm": {"median": float(np.median(shift[use])), "p90": float(np.percentile(shift[use], 90)),
+                           "max": float(shift[use].max())},
+              "definition_std_mm": {"median": float(np.median(std[use])),
+                                    "p10": float(np.percentile(std[use], 10)),
+                                    "p90": float(np.percentile(std[use], 90))},
+              "per_point": {"shift_mm": shift.round(3).tolist(), "std_mm": std.round(3).tolist(),
+                            "renders_seen": count.tolist()}}
+    return calibrated, report
+
+
+def london_photos(root: Path, n: int) -> list:
+    """The first ``n`` neutral front photos of the London set under ``root/faces``."""
+    photos = sorted((Path(root) / "faces" / "frl_london" / "neutral_front").glob("*_03.jpg"))[:n]
+    if not photos:
+        raise InputError(f"{root}/faces/frl_london/neutral_front: no photos found")
+    return photos
+
+
+@one_line_errors("python -m evaluation.scheme_calibration")
+def main(argv=None):
+    from morphable import load_model
+    from morphable.fitting.schemes import load_scheme, save_scheme
+
+    from .bench_alignment import data_root
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--model", default="sfm")
+    p.add_argument("--scheme", type=Path, default=None,
+                   help="the registered scheme to start from (default the model's sidecar)")
+    p.add_argument("--photos", nargs="+", type=Path, default=None,
+                   help="photos lending colours (default the first --n-photos London people)")
+    p.add_argument("--n-photos", type=int, default=20)
+    p.add_argument("--n-subjects", type=int, default=20)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--data", type=Path, default=None)
+    p.add_argument("--out", type=Path, required=True, help="calibrated sidecar (.npz)")
+    p.add_argument("--report", type=Path, default=None, help="JSON report (default beside --out)")
+    add_verbosity_arguments(p)
+    a = p.parse_args(argv)
+    configure(verbosity(a))
+    if not a.out.parent.is_dir():
+        raise InputError(f"{a.out}: output folder {a.out.parent} does not exist")
+    model = load_model(a.model)
+    scheme = load_scheme(model, "facemesh478", a.scheme)
+    from .scans import photo_colors
+
+    photos = a.photos or london_photos(a.data or data_root(), a.n_photos)
+    calibrated, report = calibrate(model, scheme, [photo_colors(model, p) for p in photos],
+                                   n_subjects=a.n_subjects, seed=a.seed)
+    report["photos"] = [str(p) for p in photos]
+    save_scheme(calibrated, a.out, model)
+    rep = a.report or a.out.with_suffix(".calibration.json")
+    rep.write_text(json.dumps(report, indent=1))
+    print(f"{model.name}: {report['calibrated_points']} points calibrated on {report['renders']} renders "
+          f"({report['no_face']} without a face); shift median {report['shift_mm']['median']:.2f} mm, "
+          f"90 % {report['shift_mm']['p90']:.2f} mm; definition std median "
+          f"{report['definition_std_mm']['median']:.2f} mm; wrote {a.out} and {rep}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
