@@ -214,7 +214,7 @@ def test_a_registered_method_runs_in_the_protocol(sfm, monkeypatch, tmp_path):
 def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm):
     from evaluation.florence.methods import Reconstruction, prepare_methods
     from evaluation.florence.protocol import evaluate, run_protocol
-    from evaluation.landmark_definitions import fit_surface
+    from evaluation.definition_error import fit_surface
     from evaluation.scans import Scan
 
     # a model face with an expression, rotated and moved: its surface gives its coefficients
@@ -244,7 +244,7 @@ def test_landmarks_3d_fit(sfm):
     place of the landmarks (a similarity is fitted with it)."""
     from evaluation.florence.methods import Reconstruction, prepare_methods
     from evaluation.florence.protocol import evaluate
-    from evaluation.landmark_definitions import fit_landmarks_3d
+    from evaluation.definition_error import fit_landmarks_3d
     from evaluation.scans import Scan, model_scan
 
     scan = model_scan(sfm, rng=5, definition_mm=2.5)
@@ -271,7 +271,7 @@ def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     nostrils' insides, which no scan has, are left out of the comparison too."""
     from evaluation.florence.methods import Reconstruction
     from evaluation.florence.protocol import evaluate
-    from evaluation.landmark_definitions import fit_surface
+    from evaluation.definition_error import fit_surface
     from evaluation.scans import outer_skin
 
     skin = ict.skin_vertices()
@@ -384,7 +384,7 @@ def test_detected_frames_get_the_detectors_error(james, sfm):
 
 
 def test_landmark_definition_offsets(sfm, ict):
-    from evaluation.landmark_definitions import definition_offsets, group_rms, main
+    from evaluation.definition_error import definition_offsets, group_rms, main
     from evaluation.scans import model_scan as sample
 
     # the model's own landmark vertices: nothing to measure; another model's: millimetres

@@ -251,26 +251,26 @@ class ScanFit(Method):
 
 class SurfaceFit(ScanFit):
     """The model fitted to the scan's surface (identity, expressions and a rigid pose,
-    :func:`evaluation.landmark_definitions.fit_surface`): the error no method using this
+    :func:`evaluation.definition_error.fit_surface`): the error no method using this
     model can go below."""
 
     name = "surface-fit"
 
     def fit_scan(self, model, scan: Scan):
-        from ..landmark_definitions import fit_surface
+        from ..definition_error import fit_surface
 
         return fit_surface(model, scan, iterations=15, expression=True, pose="joint")
 
 
 class Landmarks3D(ScanFit):
     """The model fitted to the scan's own 3D landmarks
-    (:func:`evaluation.landmark_definitions.fit_landmarks_3d`): what the landmarks tell about
+    (:func:`evaluation.definition_error.fit_landmarks_3d`): what the landmarks tell about
     the face's shape under the model, without images."""
 
     name = "landmarks-3d"
 
     def fit_scan(self, model, scan: Scan):
-        from ..landmark_definitions import fit_landmarks_3d
+        from ..definition_error import fit_landmarks_3d
 
         return fit_landmarks_3d(model, scan)
 

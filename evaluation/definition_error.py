@@ -13,8 +13,8 @@ rounded, is the fitter's default profile ``DEFINITION_STD_MM``.
 
 Commands::
 
-    python -m evaluation.landmark_definitions --synthetic-scan ict --n-scans 6
-    python -m evaluation.landmark_definitions --scan SCAN.obj --scan-landmarks SCAN.ljson
+    python -m evaluation.definition_error --synthetic-scan ict --n-scans 6
+    python -m evaluation.definition_error --scan SCAN.obj --scan-landmarks SCAN.ljson
 
 The default profile was measured on ICT FaceKit subjects (seeds 100-105), which are not the
 held-out scan. :func:`fit_landmarks_3d` fits the model to a scan's own 3D landmarks with that
@@ -205,7 +205,7 @@ def group_rms(offsets) -> dict:
 
 
 def _parser():
-    p = argparse.ArgumentParser(prog="python -m evaluation.landmark_definitions",
+    p = argparse.ArgumentParser(prog="python -m evaluation.definition_error",
                                 description=__doc__.split("\n")[0])
     p.add_argument("--scan", help="scan mesh (OBJ, PLY, STL...)")
     p.add_argument("--scan-landmarks", help="its 68 or 51 3D landmarks")
@@ -219,7 +219,7 @@ def _parser():
     return p
 
 
-@one_line_errors("evaluation.landmark_definitions")
+@one_line_errors("evaluation.definition_error")
 def main(argv=None) -> int:
     from morphable import load_model
 
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
 
         with atomic_path(Path(args.report)) as tmp:
             tmp.write_text(json.dumps({"model": model.name, "scans": [s.source for s in scans],
-                                       "groups": table, "command": "python -m evaluation.landmark_definitions "
+                                       "groups": table, "command": "python -m evaluation.definition_error "
                                        + " ".join(sys.argv[1:] if argv is None else argv)}, indent=1))
     return 0
 
