@@ -23,9 +23,10 @@ import numpy as np
 import torch
 
 from morphable.errors import InputError
+from morphable.metrics import umeyama
 
-__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "face_frame", "similarity",
-           "align_image", "IMAGE_SUFFIXES"]
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "face_frame", "align_image",
+           "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
 
@@ -260,34 +261,6 @@ class SyntheticFaces:
 
 
 # --- real images ----------------------------------------------------------------------
-def similarity(src, dst) -> np.ndarray:
-    """Least-squares similarity (Umeyama) mapping points ``src`` (N, 2) onto ``dst`` (N, 2),
-    ignoring rows with NaN -> (2, 3) matrix ``A`` with ``dst ~ A[:, :2] @ src + A[:, 2]``.
-
-    Examples
-    --------
-    >>> src = np.array([[0., 0], [1, 0], [0, 1]])
-    >>> similarity(src, 2 * src + 5).round(6) + 0.0  # + 0.0 turns -0. into 0.
-    array([[2., 0., 5.],
-           [0., 2., 5.]])
-    """
-    src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
-    ok = np.isfinite(src).all(1) & np.isfinite(dst).all(1)
-    if ok.sum() < 2:
-        raise InputError("similarity needs at least two landmark pairs")
-    s, d = src[ok], dst[ok]
-    ms, md = s.mean(0), d.mean(0)
-    s0, d0 = s - ms, d - md
-    U, S, Vt = np.linalg.svd(d0.T @ s0 / len(s))
-    sign = np.diag([1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ sign @ Vt
-    var = (s0 ** 2).sum() / len(s)
-    if var < 1e-12:
-        raise InputError("similarity: the source landmarks coincide")
-    scale = np.trace(np.diag(S) @ sign) / var
-    return np.hstack([scale * R, (md - scale * R @ ms)[:, None]])
-
-
 def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
     """Warp a photo so that its 68 landmarks (pixels) match :func:`template`.
 
@@ -297,7 +270,8 @@ def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> n
     from PIL import Image
 
     img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
-    A = similarity(landmarks, template(resolution, model))
+    scale, R, t = umeyama(landmarks, template(resolution, model))
+    A = np.hstack([scale * R, t[:, None]])
     # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
     # our pixel centres are integers, PIL's are at +0.5
     inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))
