@@ -9,10 +9,11 @@
     detector) to :func:`template` — the landmarks of the mean face as the synthetic camera
     sees it, so that real and synthetic images share one framing.
 
-Framing (both): FFHQ's rule — the crop is ``4 x`` the inter-ocular distance wide and centred
-``0.1`` of the way from the eye midpoint to the mouth centre; for the SFM mean face this is a
-252 mm wide square. Images are float tensors (B, 3, R, R) in [-1, 1]; landmarks are pixels
-(x right, y down, 0-based pixel centres), NaN where the model defines no fixed vertex.
+Framing (both): FFHQ's rule (:func:`morphable.refinement.face_frame`) — the crop is ``4 x``
+the inter-ocular distance wide and centred ``0.1`` of the way from the eye midpoint to the
+mouth centre; for the SFM mean face this is a 257 mm wide square. Images are float tensors
+(B, 3, R, R) in [-1, 1]; landmarks are pixels (x right, y down, 0-based pixel centres), NaN
+where the model defines no fixed vertex.
 """
 from __future__ import annotations
 
@@ -24,9 +25,9 @@ import torch
 
 from morphable.errors import InputError
 from morphable.metrics import umeyama
+from morphable.refinement.crop import face_frame
 
-__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "face_frame", "align_image",
-           "IMAGE_SUFFIXES"]
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "align_image", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
 
@@ -42,21 +43,10 @@ def _model(name: str):
     return load_model(name)
 
 
-def face_frame(model) -> tuple[np.ndarray, float]:
-    """(centre (3,) mm, crop width mm) of the FFHQ-style crop of the model's mean face."""
-    lm = model.landmark_positions()
-    eyes = np.nanmean(lm[36:42], 0), np.nanmean(lm[42:48], 0)
-    eye_mid = (eyes[0] + eyes[1]) / 2
-    mouth = np.nanmean(lm[48:68], 0)
-    centre = eye_mid + 0.1 * (mouth - eye_mid)
-    width = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - eye_mid))
-    return centre, float(width)
-
-
 def _camera(model, resolution: int, yaw=0.0, pitch=0.0, roll=0.0):
     from morphable.camera import Camera
 
-    centre, width = face_frame(model)
+    centre, width = face_frame(model.landmark_positions())
     return Camera.looking_at_face((resolution, resolution), yaw=yaw, pitch=pitch, roll=roll,
                                   face_width_px=150.0 * resolution / width, center=centre)
 
