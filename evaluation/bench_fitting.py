@@ -61,6 +61,7 @@ from morphable.fitting.schemes import load_scheme
 from morphable.io.atomic import atomic_path
 from morphable.ibug68 import JAW
 from morphable.logs import add_verbosity_arguments, configure, verbosity
+from morphable.metrics import umeyama
 
 from .peers import EosFitter, eos_projection
 
@@ -73,16 +74,10 @@ FAIL_MM = 10.0
 
 # --- ground truth -------------------------------------------------------------------------
 def similarity_error(fitted, truth):
-    """Mean per-vertex distance (mm) after the best similarity transform fitted -> truth (Umeyama)."""
-    mu_f, mu_t = fitted.mean(0), truth.mean(0)
-    F, T = fitted - mu_f, truth - mu_t
-    U, S, Vt = np.linalg.svd(T.T @ F)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.diag([1.0, 1.0, d])
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (F ** 2).sum()
-    aligned = s * F @ R.T + mu_t
-    return float(np.linalg.norm(aligned - truth, axis=1).mean())
+    """Mean per-vertex distance (mm) after the best similarity transform fitted -> truth
+    (:func:`morphable.metrics.umeyama`)."""
+    scale, R, t = umeyama(fitted, truth)
+    return float(np.linalg.norm(scale * fitted @ R.T + t - truth, axis=1).mean())
 
 
 def make_sample(model, rng, max_yaw: float = 80.0, max_tilt: float = 30.0):

@@ -13,7 +13,6 @@ Examples
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,11 +20,10 @@ import numpy as np
 
 from morphable.errors import InputError
 from morphable.ibug68 import GROUPS, INNER, N_LANDMARKS, from_menpo_labels
-from morphable.logs import import_open3d
 from morphable.metrics import submesh
 
 __all__ = ["Scan", "load_scan", "read_scan_landmarks", "detect_units", "interocular",
-           "model_scan", "photo_colors", "outer_skin", "UNITS", "TYPICAL_INTEROCULAR_MM"]
+           "model_scan", "photo_colors", "UNITS", "TYPICAL_INTEROCULAR_MM"]
 
 UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 """Millimetres per unit."""
@@ -334,43 +332,3 @@ def _jaw_on_contour(model, vertices, landmarks, arc_offset):
         fill = np.isnan(landmarks[lms]).any(1)
         landmarks[lms[fill]] = interpolate_arc(P, arc, at)[fill]
 
-
-MIN_OPEN = 0.1
-"""Share of directions from a skin vertex that must reach open space for :func:`outer_skin`."""
-_OUTER: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-def outer_skin(model) -> np.ndarray:
-    """(V,) bool: the vertices a scan of the face can have — the model's skin
-    (:meth:`~morphable.model.MorphableModel.skin_vertices`) and, for a model with an inside
-    (eyeballs, teeth: ICT), only the skin of its mean face that is not in a cavity: from a
-    vertex at least :data:`MIN_OPEN` of 64 directions spread over the sphere reach open space
-    (a flat patch: half of them). This leaves out the inside of the nostrils, between the lips
-    and the ear's folds (10 % of ICT's skin; on james the nostrils' insides made a third of the
-    ICT mean face's error in the crop). Read-only, cached per model."""
-    if model in _OUTER:
-        return _OUTER[model]
-    keep = np.zeros(model.n_vertices, dtype=bool)
-    keep[model.skin_vertices()] = True
-    if not keep.all():
-        o3d = import_open3d()
-
-        from morphable.normals import vertex_normals
-        from morphable.raster.visibility import scene as raycasting_scene
-
-        ids, tri = submesh(model.triangles, keep)
-        v = np.asarray(model.mean, dtype=np.float64)[ids]
-        scene = raycasting_scene(v, tri)
-        start = v + 0.5 * vertex_normals(v, tri)     # just off the surface, not on it
-        i = np.arange(64) + 0.5                       # a Fibonacci sphere of directions
-        z, phi = 1.0 - 2.0 * i / len(i), np.pi * (1.0 + 5.0 ** 0.5) * i
-        r = np.sqrt(1.0 - z * z)
-        directions = np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
-        free = np.zeros(len(v))
-        for d in directions:
-            rays = np.concatenate([start, np.broadcast_to(d, v.shape)], 1).astype(np.float32)
-            free += np.isinf(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
-        keep[ids[free / len(directions) < MIN_OPEN]] = False
-    keep.flags.writeable = False
-    _OUTER[model] = keep
-    return keep

@@ -3,7 +3,7 @@
 The steps are usable alone:
 
 1. :func:`align_landmarks` — similarity (or rigid) transform from corresponding 3D landmarks
-   (Umeyama, through open3d);
+   (:func:`umeyama`, which serves 2D points too);
 2. :func:`crop_sphere` / :func:`crop_mesh` — keep what lies within 95 mm of the nose tip;
 3. :func:`icp_refine` — open3d ICP, point-to-plane (rigid), optionally preceded by a
    point-to-point ICP with scale;
@@ -32,8 +32,8 @@ import numpy as np
 from .errors import FitError, InputError
 from .logs import import_open3d
 
-__all__ = ["Similarity", "align_landmarks", "crop_sphere", "crop_mesh", "submesh", "icp_refine",
-           "point_to_plane", "point_to_surface", "compare_to_scan", "Comparison",
+__all__ = ["Similarity", "umeyama", "align_landmarks", "crop_sphere", "crop_mesh", "submesh",
+           "icp_refine", "point_to_plane", "point_to_surface", "compare_to_scan", "Comparison",
            "NOSE_TIP", "CROP_RADIUS_MM"]
 
 NOSE_TIP = 30
@@ -129,8 +129,61 @@ def _o3d_cloud(points, normals=None):
     return pc
 
 
+def umeyama(source, target, scale: bool = True):
+    """Least-squares similarity (Umeyama) mapping points ``source`` onto ``target``, in 2D or 3D.
+
+    Parameters
+    ----------
+    source, target : (N, D) array-like, D = 2 or 3, any unit (mm, px); rows with NaN in
+        either are ignored
+    scale : bool
+        False fits a rigid transform (scale 1).
+
+    Returns
+    -------
+    scale : float; rotation : (D, D), a proper rotation; translation : (D,) in the points'
+    unit, with ``target ~ scale * source @ rotation.T + translation``.
+
+    Raises
+    ------
+    FitError when fewer than D usable pairs remain, or they leave the rotation free (3D:
+    collinear; 2D: coincident). The messages speak of landmarks: what all callers but a
+    benchmark align.
+
+    Examples
+    --------
+    >>> src = np.array([[0., 0], [1, 0], [0, 1]])
+    >>> s, R, t = umeyama(src, 2 * src + 5)
+    >>> round(s, 6), R.round(6) + 0.0, t.round(6)   # + 0.0 turns -0. into 0.
+    (2.0, array([[1., 0.],
+           [0., 1.]]), array([5., 5.]))
+    """
+    src, dst = np.asarray(source, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] not in (2, 3) or src.shape != dst.shape:
+        raise InputError(f"landmark alignment: expected two (N, 2) or (N, 3) point arrays of one "
+                         f"shape, got {src.shape} and {dst.shape}")
+    D = src.shape[1]
+    ok = np.isfinite(src).all(1) & np.isfinite(dst).all(1)
+    s, d = src[ok], dst[ok]
+    if len(s) < D:
+        raise FitError(f"landmark alignment needs {D} corresponding points, got {len(s)}")
+    ms, md = s.mean(0), d.mean(0)
+    s0, d0 = s - ms, d - md
+    # points that span fewer than D - 1 directions leave a rotation free: refuse rather than guess
+    for pts, what in ((s0, "source"), (d0, "target")):
+        sv = np.linalg.svd(pts, compute_uv=False)
+        if sv[0] <= 0 or sv[D - 2] < 1e-9 * max(sv[0], 1e-300):
+            raise FitError(f"landmark alignment: the {what} landmarks are "
+                           f"{'collinear or coincident' if D == 3 else 'coincident'}")
+    U, S, Vt = np.linalg.svd(d0.T @ s0 / len(s))
+    sign = np.diag([1.0] * (D - 1) + [np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ sign @ Vt
+    c = np.trace(np.diag(S) @ sign) / ((s0 ** 2).sum() / len(s)) if scale else 1.0
+    return float(c), R, md - c * R @ ms
+
+
 def align_landmarks(source, target, scale: bool = True) -> Similarity:
-    """Least-squares similarity (Umeyama) mapping ``source`` landmarks onto ``target``.
+    """Least-squares similarity (:func:`umeyama`) mapping ``source`` landmarks onto ``target``.
 
     Parameters
     ----------
@@ -146,24 +199,11 @@ def align_landmarks(source, target, scale: bool = True) -> Similarity:
     ------
     FitError when fewer than 3 usable, non-collinear pairs remain.
     """
-    o3d = import_open3d()
-
     src = _points(source, "source landmarks", allow_nan=True)
     dst = _points(target, "target landmarks", allow_nan=True)
     if src.shape != dst.shape:
         raise InputError(f"landmarks: source has {len(src)} points, target has {len(dst)}")
-    ok = np.isfinite(src).all(1) & np.isfinite(dst).all(1)
-    src, dst = src[ok], dst[ok]
-    if len(src) < 3:
-        raise FitError(f"landmark alignment needs 3 corresponding points, got {len(src)}")
-    # collinear (or coincident) points leave a rotation free: refuse rather than guess
-    for pts, what in ((src, "source"), (dst, "target")):
-        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
-        if sv[0] <= 0 or sv[1] < 1e-9 * max(sv[0], 1e-300):
-            raise FitError(f"landmark alignment: the {what} landmarks are collinear or coincident")
-    est = o3d.pipelines.registration.TransformationEstimationPointToPoint(with_scaling=scale)
-    corres = o3d.utility.Vector2iVector(np.repeat(np.arange(len(src), dtype=np.int32)[:, None], 2, 1))
-    return Similarity.from_matrix(est.compute_transformation(_o3d_cloud(src), _o3d_cloud(dst), corres))
+    return Similarity(*umeyama(src, dst, scale))
 
 
 def crop_sphere(points, center, radius: float = CROP_RADIUS_MM) -> np.ndarray:

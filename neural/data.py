@@ -9,10 +9,11 @@
     detector) to :func:`template` — the landmarks of the mean face as the synthetic camera
     sees it, so that real and synthetic images share one framing.
 
-Framing (both): FFHQ's rule — the crop is ``4 x`` the inter-ocular distance wide and centred
-``0.1`` of the way from the eye midpoint to the mouth centre; for the SFM mean face this is a
-252 mm wide square. Images are float tensors (B, 3, R, R) in [-1, 1]; landmarks are pixels
-(x right, y down, 0-based pixel centres), NaN where the model defines no fixed vertex.
+Framing (both): FFHQ's rule (:func:`morphable.refinement.face_frame`) — the crop is ``4 x``
+the inter-ocular distance wide and centred ``0.1`` of the way from the eye midpoint to the
+mouth centre; for the SFM mean face this is a 257 mm wide square. Images are float tensors
+(B, 3, R, R) in [-1, 1]; landmarks are pixels (x right, y down, 0-based pixel centres), NaN
+where the model defines no fixed vertex.
 """
 from __future__ import annotations
 
@@ -23,9 +24,10 @@ import numpy as np
 import torch
 
 from morphable.errors import InputError
+from morphable.metrics import umeyama
+from morphable.refinement.crop import face_frame
 
-__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "face_frame", "similarity",
-           "align_image", "IMAGE_SUFFIXES"]
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "align_image", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
 
@@ -41,21 +43,10 @@ def _model(name: str):
     return load_model(name)
 
 
-def face_frame(model) -> tuple[np.ndarray, float]:
-    """(centre (3,) mm, crop width mm) of the FFHQ-style crop of the model's mean face."""
-    lm = model.landmark_positions()
-    eyes = np.nanmean(lm[36:42], 0), np.nanmean(lm[42:48], 0)
-    eye_mid = (eyes[0] + eyes[1]) / 2
-    mouth = np.nanmean(lm[48:68], 0)
-    centre = eye_mid + 0.1 * (mouth - eye_mid)
-    width = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - eye_mid))
-    return centre, float(width)
-
-
 def _camera(model, resolution: int, yaw=0.0, pitch=0.0, roll=0.0):
     from morphable.camera import Camera
 
-    centre, width = face_frame(model)
+    centre, width = face_frame(model.landmark_positions())
     return Camera.looking_at_face((resolution, resolution), yaw=yaw, pitch=pitch, roll=roll,
                                   face_width_px=150.0 * resolution / width, center=centre)
 
@@ -260,34 +251,6 @@ class SyntheticFaces:
 
 
 # --- real images ----------------------------------------------------------------------
-def similarity(src, dst) -> np.ndarray:
-    """Least-squares similarity (Umeyama) mapping points ``src`` (N, 2) onto ``dst`` (N, 2),
-    ignoring rows with NaN -> (2, 3) matrix ``A`` with ``dst ~ A[:, :2] @ src + A[:, 2]``.
-
-    Examples
-    --------
-    >>> src = np.array([[0., 0], [1, 0], [0, 1]])
-    >>> similarity(src, 2 * src + 5).round(6) + 0.0  # + 0.0 turns -0. into 0.
-    array([[2., 0., 5.],
-           [0., 2., 5.]])
-    """
-    src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
-    ok = np.isfinite(src).all(1) & np.isfinite(dst).all(1)
-    if ok.sum() < 2:
-        raise InputError("similarity needs at least two landmark pairs")
-    s, d = src[ok], dst[ok]
-    ms, md = s.mean(0), d.mean(0)
-    s0, d0 = s - ms, d - md
-    U, S, Vt = np.linalg.svd(d0.T @ s0 / len(s))
-    sign = np.diag([1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ sign @ Vt
-    var = (s0 ** 2).sum() / len(s)
-    if var < 1e-12:
-        raise InputError("similarity: the source landmarks coincide")
-    scale = np.trace(np.diag(S) @ sign) / var
-    return np.hstack([scale * R, (md - scale * R @ ms)[:, None]])
-
-
 def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
     """Warp a photo so that its 68 landmarks (pixels) match :func:`template`.
 
@@ -297,7 +260,8 @@ def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> n
     from PIL import Image
 
     img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
-    A = similarity(landmarks, template(resolution, model))
+    scale, R, t = umeyama(landmarks, template(resolution, model))
+    A = np.hstack([scale * R, t[:, None]])
     # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
     # our pixel centres are integers, PIL's are at +0.5
     inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))

@@ -214,8 +214,8 @@ def test_a_registered_method_runs_in_the_protocol(sfm, monkeypatch, tmp_path):
 def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm):
     from evaluation.florence.methods import Reconstruction, prepare_methods
     from evaluation.florence.protocol import evaluate, run_protocol
-    from evaluation.landmark_definitions import fit_surface
     from evaluation.scans import Scan
+    from morphable.fitting import fit_surface
 
     # a model face with an expression, rotated and moved: its surface gives its coefficients
     rng = np.random.default_rng(3)
@@ -225,8 +225,14 @@ def test_surface_fit_recovers_a_model_face_and_is_the_floor_on_james(james, sfm)
     R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
     scan = Scan(vertices=v @ R.T + 40.0, triangles=sfm.triangles,
                 landmarks=sfm.landmark_positions(alpha, beta) @ R.T + 40.0, source="model face")
-    a, b = fit_surface(sfm, scan, iterations=15, expression=True, pose="joint")
+    a, b = fit_surface(sfm, scan.vertices, scan.triangles, scan.landmarks, n_iterations=15,
+                       expression=True, pose="joint")
     assert np.all((b >= 0) & (b <= 1)) and abs(b[0] - 0.6) < 0.1
+    with pytest.raises(InputError, match=r"model face: expected \(68, 3\) landmarks"):
+        fit_surface(sfm, scan.vertices, scan.triangles, scan.landmarks[17:], name="model face")
+    with pytest.raises(InputError, match="model face: fewer than 4 landmarks"):
+        fit_surface(sfm, scan.vertices, scan.triangles, np.full((68, 3), np.nan),
+                    name="model face")
     cell, _ = evaluate(Reconstruction.from_vertices(sfm, sfm.vertices(a, b), 0.0, 1), scan)
     assert cell["mean_mm"] < 0.1, cell
     # on a real scan it is far below the mean face, and it needs the scan
@@ -244,11 +250,11 @@ def test_landmarks_3d_fit(sfm):
     place of the landmarks (a similarity is fitted with it)."""
     from evaluation.florence.methods import Reconstruction, prepare_methods
     from evaluation.florence.protocol import evaluate
-    from evaluation.landmark_definitions import fit_landmarks_3d
-    from evaluation.scans import Scan, model_scan
+    from evaluation.scans import model_scan
+    from morphable.fitting import fit_landmarks_3d
 
     scan = model_scan(sfm, rng=5, definition_mm=2.5)
-    a, b = fit_landmarks_3d(sfm, scan)
+    a, b = fit_landmarks_3d(sfm, scan.landmarks)
     assert np.all((b >= 0) & (b <= 1)) and np.isfinite(a).all()
 
     def error(v):
@@ -256,8 +262,7 @@ def test_landmarks_3d_fit(sfm):
 
     assert error(sfm.vertices(a, b)) < 0.9 * error(sfm.mean.astype(np.float64))
     c, s = np.cos(0.4), np.sin(0.4)
-    moved = Scan(scan.vertices, scan.triangles,
-                 1.1 * scan.landmarks @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + 30.0)
+    moved = 1.1 * scan.landmarks @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + 30.0
     a2, b2 = fit_landmarks_3d(sfm, moved)
     np.testing.assert_allclose(a2, a, atol=1e-4)
     np.testing.assert_allclose(b2, b, atol=1e-4)
@@ -271,8 +276,7 @@ def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     nostrils' insides, which no scan has, are left out of the comparison too."""
     from evaluation.florence.methods import Reconstruction
     from evaluation.florence.protocol import evaluate
-    from evaluation.landmark_definitions import fit_surface
-    from evaluation.scans import outer_skin
+    from morphable.fitting import fit_surface, outer_skin
 
     skin = ict.skin_vertices()
     assert len(skin) == len(ict.segments["face"]) + len(ict.segments["head_neck"])
@@ -283,7 +287,8 @@ def test_only_the_outer_skin_meets_a_scan(james, ict, sfm):
     nostrils = skin[np.linalg.norm(ict.mean[skin] - inside_nose, axis=1) < 6]
     assert len(nostrils) > 20 and not outer[nostrils].any()
     assert outer_skin(sfm).all()    # a surface model: every vertex
-    a, b = fit_surface(ict, james, iterations=8, expression=True, pose="joint")
+    a, b = fit_surface(ict, james.vertices, james.triangles, james.landmarks, n_iterations=8,
+                       expression=True, pose="joint")
     fit, _ = evaluate(Reconstruction.from_vertices(ict, ict.vertices(a, b), 0.0, 1), james)
     mean, _ = evaluate(Reconstruction.from_vertices(ict, ict.vertices(), 0.0, 1), james)
     assert fit["mean_mm"] < 0.6 * mean["mean_mm"], (fit, mean)
@@ -384,7 +389,7 @@ def test_detected_frames_get_the_detectors_error(james, sfm):
 
 
 def test_landmark_definition_offsets(sfm, ict):
-    from evaluation.landmark_definitions import definition_offsets, group_rms, main
+    from evaluation.definition_error import definition_offsets, group_rms, main
     from evaluation.scans import model_scan as sample
 
     # the model's own landmark vertices: nothing to measure; another model's: millimetres

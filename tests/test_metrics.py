@@ -4,7 +4,7 @@ import pytest
 
 from morphable.errors import FitError, InputError
 from morphable.metrics import (Similarity, align_landmarks, compare_to_scan, crop_mesh,
-                               crop_sphere, point_to_plane, point_to_surface)
+                               crop_sphere, point_to_plane, point_to_surface, umeyama)
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +52,21 @@ def test_align_landmarks_degenerate():
         align_landmarks(np.full((68, 3), np.nan), np.zeros((68, 3)))
     with pytest.raises(InputError):
         align_landmarks(np.zeros((5, 2)), np.zeros((5, 2)))
+
+
+def test_umeyama_3d_is_a_proper_rotation_even_for_a_mirrored_target():
+    rng = np.random.default_rng(4)
+    T = random_similarity(rng)
+    src = rng.normal(size=(12, 3)) * 40
+    s, R, t = umeyama(src, T.apply(src), scale=False)
+    assert s == 1.0 and np.isclose(np.linalg.det(R), 1.0)
+    s, R, t = umeyama(src, T.apply(src))
+    np.testing.assert_allclose(s * src @ R.T + t, T.apply(src), atol=1e-9)
+    # a mirror image has no exact similarity: the best proper rotation, never a reflection
+    s, R, _ = umeyama(src, src * [-1, 1, 1])
+    assert np.isclose(np.linalg.det(R), 1.0) and s < 1.0
+    with pytest.raises(InputError, match="one shape"):
+        umeyama(src, src[:, :2])
 
 
 def test_crop_sphere_and_mesh():

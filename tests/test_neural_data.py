@@ -5,8 +5,9 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("open3d")
 
-from morphable.errors import InputError  # noqa: E402
-from neural.data import (AlignedImageFolder, SyntheticFaces, align_image, similarity,  # noqa: E402
+from morphable.errors import FitError, InputError  # noqa: E402
+from morphable.metrics import umeyama  # noqa: E402
+from neural.data import (AlignedImageFolder, SyntheticFaces, align_image,  # noqa: E402
                          template)
 
 
@@ -72,10 +73,13 @@ def test_template_and_similarity(data_dir):
     ang = np.radians(20)
     R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
     src = np.random.default_rng(0).random((10, 2)) * 50
-    A = similarity(src, 1.7 * src @ R.T + [3, -4])
-    np.testing.assert_allclose(A, np.hstack([1.7 * R, [[3], [-4]]]), atol=1e-9)
-    with pytest.raises(InputError):
-        similarity(np.full((3, 2), np.nan), src[:3])
+    scale, rotation, t = umeyama(src, 1.7 * src @ R.T + [3, -4])
+    np.testing.assert_allclose(scale * rotation, 1.7 * R, atol=1e-9)
+    np.testing.assert_allclose(t, [3, -4], atol=1e-9)
+    with pytest.raises(FitError, match="2 corresponding"):
+        umeyama(np.full((3, 2), np.nan), src[:3])
+    with pytest.raises(FitError, match="coincident"):
+        umeyama(np.ones((3, 2)), src[:3])
 
 
 def test_align_real_photo(data_dir, tmp_path):
@@ -88,8 +92,8 @@ def test_align_real_photo(data_dir, tmp_path):
     out = align_image(img, pts, 64)
     assert out.shape == (64, 64, 3) and out.dtype == np.uint8
     # the warp sends the photo's landmarks next to the template: mean residual < 2 px
-    A = similarity(pts, template(64))
-    moved = pts @ A[:, :2].T + A[:, 2]
+    scale, R, t = umeyama(pts, template(64))
+    moved = scale * pts @ R.T + t
     ok = ~np.isnan(template(64)[:, 0])
     assert np.mean(np.linalg.norm(moved[ok] - template(64)[ok], axis=1)) < 2.0
     # and the warped image holds the photo's pixel there: sample the nose tip

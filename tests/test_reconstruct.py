@@ -8,6 +8,7 @@ torch = pytest.importorskip("torch")
 
 from morphable.camera import Camera  # noqa: E402
 from morphable.cli import main  # noqa: E402
+from morphable.errors import InputError  # noqa: E402
 from morphable.fitting import fit_landmarks  # noqa: E402
 from morphable.raster import DirectionalLight, render, sh_from_lights  # noqa: E402
 from morphable.refinement import crop_camera, crop_image, edit, face_crop, refine  # noqa: E402
@@ -43,6 +44,25 @@ def test_face_crop_is_the_training_framing():
     assert round(side, 1) == 64.0 and round(left + side / 2, 1) == 32.0  # the template fills its crop
 
 
+def test_face_frame_is_one_rule_in_2d_and_3d(sfm):
+    from morphable.refinement import face_frame
+
+    lm = sfm.landmark_positions()
+    centre, width = face_frame(lm)                   # the training framing, mm
+    assert 240 < width < 270 and centre.shape == (3,)
+    # moved and scaled, the frame follows; the x, y of the points alone frame the same x, y
+    c2, w2 = face_frame(2.0 * lm + 10.0)
+    np.testing.assert_allclose(c2, 2.0 * centre + 10.0)
+    assert w2 == pytest.approx(2.0 * width)
+    frontal = lm.copy()
+    frontal[:, 2] = 0.0
+    c_xy, w_xy = face_frame(frontal[:, :2])
+    np.testing.assert_allclose(c_xy, centre[:2])
+    assert w_xy == pytest.approx(face_frame(frontal)[1])
+    with pytest.raises(InputError, match="eye and mouth"):
+        face_frame(np.full((68, 2), np.nan))
+
+
 def test_crop_camera_maps_pixels():
     cam = Camera.looking_at_face((300, 200), yaw=10)
     pts = np.array([[10.0, 20, 30], [-40, 5, 60]])
@@ -76,8 +96,6 @@ def test_classical_refinement_lowers_photometric_loss(synthetic, sfm):
     out = edit(state, yaw=-20, expression={"happiness": 0.9})
     assert out.shape == (48, 48, 3) and np.isfinite(out).all()
     assert np.abs(out - state.rendered).mean() > 0.01
-    from morphable.errors import InputError
-
     with pytest.raises(InputError, match="unknown expression"):
         edit(state, expression={"smile": 1.0})
 

@@ -16,10 +16,11 @@ from typing import ClassVar
 import numpy as np
 
 from morphable.errors import FitError, InputError
+from morphable.fitting import fit_landmarks_3d, fit_surface, outer_skin
 from morphable.metrics import submesh
 
 from ..peers import EosFitter
-from ..scans import Scan, outer_skin
+from ..scans import Scan
 
 __all__ = ["MIN_LANDMARKS", "METHODS", "Frames", "Reconstruction", "Method", "Ours",
            "OursIndependent", "Eos", "MeanFace", "ScanFit", "SurfaceFit", "Landmarks3D", "Gar",
@@ -83,7 +84,7 @@ class Reconstruction:
     def from_vertices(cls, model, vertices, seconds: float, n_frames: int,
                       info: dict | None = None) -> Reconstruction:
         """Package a model-frame mesh ((V, 3) mm of all the model's vertices): landmarks from
-        the model's ids, its outer skin only (:func:`evaluation.scans.outer_skin`: a scan has
+        the model's ids, its outer skin only (:func:`morphable.fitting.outer_skin`: a scan has
         no eyeballs, teeth or nostrils' insides)."""
         lm = np.full((68, 3), np.nan)
         ok = model.landmark_ids >= 0
@@ -251,28 +252,25 @@ class ScanFit(Method):
 
 class SurfaceFit(ScanFit):
     """The model fitted to the scan's surface (identity, expressions and a rigid pose,
-    :func:`evaluation.landmark_definitions.fit_surface`): the error no method using this
-    model can go below."""
+    :func:`morphable.fitting.fit_surface`): the error no method using this model can go
+    below."""
 
     name = "surface-fit"
 
     def fit_scan(self, model, scan: Scan):
-        from ..landmark_definitions import fit_surface
-
-        return fit_surface(model, scan, iterations=15, expression=True, pose="joint")
+        return fit_surface(model, scan.vertices, scan.triangles, scan.landmarks, n_iterations=15,
+                           expression=True, pose="joint", name=scan.source)
 
 
 class Landmarks3D(ScanFit):
     """The model fitted to the scan's own 3D landmarks
-    (:func:`evaluation.landmark_definitions.fit_landmarks_3d`): what the landmarks tell about
-    the face's shape under the model, without images."""
+    (:func:`morphable.fitting.fit_landmarks_3d`): what the landmarks tell about the face's
+    shape under the model, without images."""
 
     name = "landmarks-3d"
 
     def fit_scan(self, model, scan: Scan):
-        from ..landmark_definitions import fit_landmarks_3d
-
-        return fit_landmarks_3d(model, scan)
+        return fit_landmarks_3d(model, scan.landmarks, name=scan.source)
 
 
 def gar_refiner():

@@ -1,5 +1,5 @@
-"""Landmark fitting: identity, expressions and cameras from 2D landmarks (iBUG-68, the face
-mesh's 478 points, any :mod:`.schemes` landmark scheme).
+"""Model fitting: identity, expressions and cameras from 2D landmarks (iBUG-68, the face
+mesh's 478 points, any :mod:`.schemes` landmark scheme), or from a 3D scan.
 
 Modules, each usable alone:
 
@@ -19,22 +19,27 @@ Modules, each usable alone:
 - :mod:`.correspondences` — landmark rows of a model and scheme, outline sliding and the
   outline's silhouette;
 - :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
+- :mod:`.scan_fit` — a model fitted to a 3D scan: :func:`fit_surface` (point-to-plane) and
+  :func:`fit_landmarks_3d` (its 3D landmarks), on the :func:`outer_skin` vertices;
 - :mod:`.detect` — dlib face and 68-point detection.
 
 >>> from morphable.fitting import fit_landmarks, FitResult   # doctest: +SKIP
 
-numpy only, at import time and in the fit; dlib loads inside the detection functions.
+numpy only, at import time and in the landmark fit; dlib loads inside the detection functions,
+scipy and open3d inside the scan fits.
 """
 from .correspondences import Correspondences, LandmarkBank, landmark_bank, slide_contours
 from .landmark_fit import fit_landmarks
 from .linear import solve_expression, solve_identity
 from .pose import estimate_affine_pose, project
 from .result import FitResult
+from .scan_fit import fit_landmarks_3d, fit_surface, outer_skin
 from .synthetic import simulate_landmarks
 
 __all__ = ["fit_landmarks", "FitResult", "estimate_affine_pose", "project", "solve_identity",
            "solve_expression", "landmark_bank", "LandmarkBank", "Correspondences", "slide_contours",
-           "simulate_landmarks", "detect_landmarks", "detect_faces"]
+           "simulate_landmarks", "fit_surface", "fit_landmarks_3d", "outer_skin",
+           "detect_landmarks", "detect_faces"]
 
 
 def __getattr__(name):

@@ -49,7 +49,7 @@ DEFINITION_STD_MM = _definition_profile()
 """(68,) iBUG-68's ``definition_std_mm``, mm per coordinate: how far a landmark's annotation
 typically lies from the model's landmark vertex, per group (the eyebrows are the least well
 defined): the per-coordinate RMS of the ICT FaceKit landmark vertices against SFM fits of the
-same faces, 6 subjects, rounded (``python -m evaluation.landmark_definitions --synthetic-scan
+same faces, 6 subjects, rounded (``python -m evaluation.definition_error --synthetic-scan
 ict --n-scans 6``)."""
 
 MODEL_STD_MM = 1.5

@@ -8,18 +8,21 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 
-__all__ = ["face_crop", "crop_camera", "crop_image"]
+__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image"]
 
 
-def face_crop(landmarks) -> tuple[float, float, float]:
-    """(68, 2) pixels -> square crop ``(left, top, side)`` in pixel-edge coordinates (the
-    image spans [0, W] x [0, H]): 4 x the inter-ocular distance wide (at least 3.6 x the
-    eye-mouth distance), centred 0.1 of the way from the eye midpoint to the mouth.
+def face_frame(landmarks) -> tuple[np.ndarray, float]:
+    """The FFHQ framing of a face: (68, D) iBUG landmarks (2D pixels or 3D mm) -> (centre (D,),
+    width) in their unit: a square 4 x the inter-ocular distance wide (at least 3.6 x the
+    eye-mouth distance), centred 0.1 of the way from the eye midpoint to the mouth centre. The
+    neural plugin frames its training faces by it (the mean face's 3D landmarks), the
+    refinement its crops (a photo's).
 
     >>> lm = np.zeros((68, 2))
     >>> lm[36:42], lm[42:48], lm[48:68] = (20, 30), (44, 30), (32, 50)
-    >>> face_crop(lm)           # 4 x 24 px wide, centred 2 px below the eyes
-    (-15.5, -15.5, 96.0)
+    >>> centre, width = face_frame(lm)
+    >>> centre.tolist(), width
+    ([32.0, 32.0], 96.0)
     """
     lm = np.asarray(landmarks, dtype=np.float64)
     eyes = np.nanmean(lm[36:42], 0), np.nanmean(lm[42:48], 0)
@@ -27,8 +30,22 @@ def face_crop(landmarks) -> tuple[float, float, float]:
     if not (np.isfinite(eyes).all() and np.isfinite(mouth).all()):
         raise InputError("face crop: eye and mouth landmarks are missing")
     mid = (eyes[0] + eyes[1]) / 2
-    centre = mid + 0.1 * (mouth - mid) + 0.5                      # to pixel-edge coordinates
-    side = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - mid))
+    centre = mid + 0.1 * (mouth - mid)
+    width = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - mid))
+    return centre, float(width)
+
+
+def face_crop(landmarks) -> tuple[float, float, float]:
+    """(68, 2) pixels -> square crop ``(left, top, side)`` in pixel-edge coordinates (the
+    image spans [0, W] x [0, H]) of the :func:`face_frame`.
+
+    >>> lm = np.zeros((68, 2))
+    >>> lm[36:42], lm[42:48], lm[48:68] = (20, 30), (44, 30), (32, 50)
+    >>> face_crop(lm)           # 4 x 24 px wide, centred 2 px below the eyes
+    (-15.5, -15.5, 96.0)
+    """
+    centre, side = face_frame(landmarks)
+    centre = centre + 0.5                                          # to pixel-edge coordinates
     if side < 4:
         raise InputError(f"face crop: the face is only {side:.1f} px wide")
     return float(centre[0] - side / 2), float(centre[1] - side / 2), float(side)
