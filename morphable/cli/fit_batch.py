@@ -55,7 +55,8 @@ def run(args):
     load_model(args.model)  # an unknown model fails here, once, not in every item
     options = {"model": args.model, "camera": args.camera, "focal_px": args.focal_px,
                "n_iterations": args.n_iterations, "robust": args.robust,
-               "independent": args.independent, "detector": args.detector,
+               "independent": args.independent,
+               "landmark_detector": args.landmark_detector, "face_detector": args.face_detector,
                "landmark_std_px": args.landmark_std,
                "mesh_format": args.mesh_format}
     try:

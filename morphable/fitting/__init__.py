@@ -15,12 +15,13 @@ Modules, each usable alone:
 - :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
 - :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;
 - :mod:`.correspondences` — landmark rows of a model, jaw sliding and the outline's silhouette;
-- :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
-- :mod:`.detect` — dlib face and 68-point detection.
+- :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks).
+
+Detection in photos is :mod:`morphable.detection`.
 
 >>> from morphable.fitting import fit_landmarks, FitResult   # doctest: +SKIP
 
-numpy only, at import time and in the fit; dlib loads inside the detection functions.
+numpy only, at import time and in the fit.
 """
 from .correspondences import Correspondences, LandmarkBank, landmark_bank, slide_contours
 from .landmark_fit import fit_landmarks
@@ -31,13 +32,4 @@ from .synthetic import simulate_landmarks
 
 __all__ = ["fit_landmarks", "FitResult", "estimate_affine_pose", "project", "solve_identity",
            "solve_expression", "landmark_bank", "LandmarkBank", "Correspondences", "slide_contours",
-           "simulate_landmarks", "detect_landmarks", "detect_faces"]
-
-
-def __getattr__(name):
-    # detection pulls dlib: load it only when asked for
-    if name in ("detect_landmarks", "detect_faces"):
-        from . import detect
-
-        return getattr(detect, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+           "simulate_landmarks"]
