@@ -32,7 +32,7 @@ def test_unreadable_image(tmp_path):
     bad.write_bytes(b"not a png")
     with pytest.raises(InputError, match="x.png"):
         read_image(bad)
-    with pytest.raises(InputError, match="missing.png: no such image"):
+    with pytest.raises(InputError, match="missing.png: cannot read image"):
         read_image(tmp_path / "missing.png")
 
 

@@ -93,8 +93,6 @@ def read_image(path) -> np.ndarray:
             except (OSError, ValueError, SyntaxError):
                 pass  # an unreadable EXIF block: the picture as stored
             return _to_rgb(im)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such image") from None
     except (OSError, UnidentifiedImageError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         raise InputError(f"{path}: cannot read image ({e})") from None
 
