@@ -172,7 +172,7 @@ def test_facemesh_finds_478_points_and_its_68_match_the_annotation(photo, mesh_p
     np.testing.assert_allclose(detect_ibug68(photo), lm)
 
 
-def test_facemesh_table_is_a_left_right_consistent_subset():
+def test_facemesh_table_names_68_distinct_mesh_points():
     from morphable.detection.facemesh import FACEMESH_TO_IBUG68
 
     assert FACEMESH_TO_IBUG68.shape == (68,) and FACEMESH_TO_IBUG68.dtype == np.int64
@@ -235,6 +235,21 @@ def test_facemesh_on_grey_rgba_16bit_and_exif_rotated_photos(photo, mesh_points,
         pts = detect_landmarks(path, landmark_detector="facemesh")
         d = np.linalg.norm(pts - mesh_points, axis=1).mean()
         assert d < 0.03 * size, (name, d)
+
+
+def test_478_point_files_are_read_and_fitted(photo, mesh_points, tmp_path):
+    from morphable.detection.facemesh import to_ibug68
+    from morphable.fitting.files import fit_files, read_landmark_file
+
+    np.save(tmp_path / "a.npy", mesh_points)
+    (tmp_path / "b.json").write_text(json.dumps(mesh_points.tolist()))
+    (tmp_path / "c.json").write_text(json.dumps({"landmarks": mesh_points.tolist()}))
+    for name in ("a.npy", "b.json", "c.json"):
+        np.testing.assert_allclose(read_landmark_file(tmp_path / name, (1280, 1024)), mesh_points)
+    res, report = fit_files([photo], [tmp_path / "a.npy"])
+    # until the fitter takes the 478 points, it fits their 68-point subset
+    np.testing.assert_allclose(res.landmarks[0], to_ibug68(mesh_points))
+    assert report["frames"][0]["landmark_rmse_px"] < 10
 
 
 def test_import_loads_no_detector():
