@@ -27,6 +27,11 @@ $(STAMP): setup.cfg pyproject.toml | system-deps
 	# an egg-info left in the tree by an earlier build shadows the installed entry points
 	rm -rf morphable.egg-info
 	$(BIN)/python -m pip install -q -e '.[all,dev]'
+	# the face mesh: mediapipe 0.10.14 is the last wheel that ships its face models; --no-deps
+	# because its declared jax, jaxlib, sounddevice and opencv-contrib-python are unused by the
+	# face mesh (~180 MB to download, ~670 MB installed, and opencv-contrib-python would
+	# overwrite the headless cv2); what it does import is the facemesh extra (docs/detection.md)
+	$(BIN)/python -m pip install -q --no-deps mediapipe==0.10.14
 	touch $@
 
 demo: $(STAMP)

@@ -408,7 +408,7 @@ def _other_paths(model, repeats: int = 5) -> dict:
         import torch  # noqa: F401  (the refinement needs it)
 
         from morphable.io.landmark_files import read_pts
-        from morphable.fitting.detect import read_image
+        from morphable.detection import read_image
         from morphable.refinement import refine
 
         image = read_image(DATA / "images" / "image_0010.png")

@@ -289,8 +289,8 @@ def photo_colors(model, photo, landmarks=None) -> np.ndarray:
     """A model's vertex colours taken from a photo of a face -> (V, 3) in [0, 1].
 
     The model is fitted to the photo's landmarks (``landmarks``: a landmark file; default the
-    ``.pts`` beside the photo, else dlib's) and each vertex takes the colour the fit's camera
-    sees (:func:`morphable.raster.vertex_colors`; hidden ones their mirror's or the median).
+    ``.pts`` beside the photo, else detected by :mod:`morphable.detection`'s default) and each
+    vertex takes the colour the fit's camera sees (:func:`morphable.raster.vertex_colors`; hidden ones their mirror's or the median).
     Any subject of the model (:func:`model_scan`) then wears that face's skin, brows, eyes
     and lips where the model puts them, so that a detector run on its rendered frames sees a
     face, not shaded clay.

@@ -319,18 +319,19 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
     return np.stack(out)
 
 
-def detect_landmarks(image) -> np.ndarray:
-    """68 iBUG landmarks of the largest face (``morphable.fitting.detect_landmarks``, dlib)
+def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
+    """68 iBUG landmarks of the largest face (:func:`morphable.detection.detect_ibug68`)
     -> (68, 2) px; all NaN when no face is found, so that the frame is simply not used.
 
     Parameters
     ----------
     image : (H, W, 3) uint8 or float in [0, 1]
+    landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
     """
+    from morphable.detection import detect_ibug68
     from morphable.errors import FitError
-    from morphable.fitting import detect_landmarks as dlib_landmarks
 
     try:
-        return dlib_landmarks(image)
+        return detect_ibug68(image, landmark_detector=landmark_detector, face_detector=face_detector)
     except FitError:
         return np.full((68, 2), np.nan)

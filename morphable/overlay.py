@@ -35,10 +35,15 @@ FITTED_COLOR = (255, 0, 0)
 
 
 def _photo(image) -> np.ndarray:
-    """Path or array -> (H, W, 3) float32 in [0, 1] (the raster module's reader)."""
+    """Path or array -> (H, W, 3) float32 in [0, 1]; a file is read as the detectors read it
+    (upright by its EXIF orientation, 16-bit scaled), so that its landmarks land on it."""
     from .raster import as_texture
 
-    if not isinstance(image, (str, bytes)) and not hasattr(image, "__fspath__"):
+    if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+        from .detection.images import read_image
+
+        image = read_image(image)
+    else:
         a = np.asarray(image)
         if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (3, 4)) or a.size == 0:
             raise InputError(f"image must be (H, W), (H, W, 3) or (H, W, 4), got shape {a.shape}")
@@ -109,7 +114,8 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
     landmarks : bool
         Draw the given landmarks (green crosses) and the fitted ones (red discs).
     radius : int or None
-        Landmark size in pixels; default ``max(2, min(W, H) // 250)``.
+        Landmark size in pixels; default ``max(2, min(W, H) // 250)``, and half that (at
+        least 1) for dense sets (more than 68 points, e.g. the face mesh's 478).
     supersample : int
         Samples per pixel along each axis for the shaded mesh's edges.
     crop : float or None
@@ -173,6 +179,8 @@ def draw_overlay(image, result, frame: int = 0, *, mesh: str | None = "shaded",
         out = Image.fromarray(np.round(255 * np.clip(out, 0, 1)).astype(np.uint8))
     if landmarks:
         r = int(radius) if radius is not None else max(2, min(W, H) // 250)
+        if radius is None and len(result.landmarks[i]) > 68:  # 478 crosses would hide the face
+            r = max(1, r // 2)
         draw = ImageDraw.Draw(out)
         # marks centred on the nearest pixel (pixel centres sit at integer coordinates)
         for x, y in _pixels(result.landmarks[i], W, H, r):

@@ -276,7 +276,7 @@ class AlignedImageFolder(torch.utils.data.Dataset):
     """Face photos of a folder, aligned to :func:`template`, as (3, R, R) tensors in [-1, 1].
 
     Landmarks come from ``<image>.pts`` beside each image (iBUG format, 1-based) when it
-    exists, else from dlib's 68-point detector (:func:`morphable.fitting.detect.detect_landmarks`);
+    exists, else from dlib's 68-point detector (:func:`morphable.detection.detect_landmarks`);
     an image without a face is replaced by the next one that has one. With ``aligned=True`` the images are taken as already aligned (e.g.
     the output of :func:`prepare_folder`) and only resized.
     """
@@ -312,10 +312,10 @@ class AlignedImageFolder(torch.utils.data.Dataset):
             lm = read_pts(pts)
         else:
             from morphable.errors import FitError
-            from morphable.fitting.detect import detect_landmarks
+            from morphable.detection import detect_landmarks
 
             try:
-                lm = detect_landmarks(np.asarray(img))
+                lm = detect_landmarks(np.asarray(img), landmark_detector="dlib")
             except FitError:
                 return None
         return align_image(img, lm, R, self.model)

@@ -49,17 +49,19 @@ morphable fit ../shared/data/images/image_0010.png --out-mesh fit.obj --report f
 ```"""),
         new_code_cell(SETUP),
         new_markdown_cell("## The photo and its landmarks\n\n"
-                          "dlib's HOG detector and 68-point predictor (`morphable.fitting.detect_landmarks`);"
-                          " the photo also comes with hand-annotated landmarks (`.pts`) to compare with."),
+                          "`morphable.detection.detect_ibug68`: the face mesh (mediapipe, 478 points, here"
+                          " mapped to the 68 iBUG points), or dlib's 68-point detector where mediapipe is"
+                          " not installed; the photo also comes with hand-annotated landmarks (`.pts`) to"
+                          " compare with."),
         new_code_cell('''\
 from PIL import Image
 
-from morphable.fitting import detect_landmarks
+from morphable.detection import detect_ibug68
 from morphable.io.landmark_files import read_pts
 
 photo_path = DATA / "images" / "image_0010.png"
 photo = np.asarray(Image.open(photo_path).convert("RGB"))
-detected = detect_landmarks(photo, upsample=0)  # (68, 2) pixels, x right, y down
+detected = detect_ibug68(photo)  # (68, 2) pixels, x right, y down
 annotated = read_pts(photo_path.with_suffix(".pts"))
 gap = np.linalg.norm(detected - annotated, axis=1)
 print(f"{photo.shape[1]}x{photo.shape[0]} px; detected vs annotated: median {np.median(gap):.1f} px, "

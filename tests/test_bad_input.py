@@ -85,6 +85,16 @@ def make_fixtures(d: Path) -> None:
     (d / "huge.png").write_bytes(_png_header(8000, 6250))
     (d / "bomb.png").write_bytes(_png_header(20000, 10000))
     Image.new("RGB", (320, 240), (128, 128, 128)).save(d / "grey.png")
+    rng = np.random.default_rng(2)
+    Image.fromarray(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)).save(d / "noise.png")
+    tiny = Image.new("RGB", (1500, 1000), (200, 200, 200))
+    with Image.open(face_png) as im:
+        tiny.paste(im.convert("RGB").resize((16, 13)), (900, 500))   # a face of ~6 px
+    tiny.save(d / "tiny.png")
+    mesh = rng.uniform(300, 700, (478, 2))
+    np.save(d / "short.npy", mesh[:10])
+    (d / "nan.json").write_text(json.dumps({"landmarks": [[float("nan"), 1.0]] + mesh[1:].tolist()}))
+    (d / "mesh3d.json").write_text(json.dumps(np.c_[mesh, mesh[:, :1]].tolist()))
     (d / "emptydir").mkdir()
     (d / "corrupt.json").write_text('{"model": "sfm", "frames": [')
     (d / "bad.jsonl").write_text('{"image": "face.png"}\n[1, 2]\n')
@@ -178,7 +188,7 @@ def _florence(d, scan, report):
 
 
 def test_non_manifold_and_unreferenced_scans_give_the_clean_scans_numbers(tmp_path, data_dir):
-    assert len(ACCEPTED) == 4
+    assert len(ACCEPTED) == 5
     lines = (DATA / "scans/james/james.obj").read_text().splitlines()
     lines = [ln for ln in lines if not ln.startswith(("mtllib", "usemtl"))]
     verts = [ln for ln in lines if ln.startswith("v ")]

@@ -481,14 +481,15 @@ def test_detector_on_synthetic_subjects(tmp_path, data_dir):
     pytest.importorskip("dlib")
     report = tmp_path / "r.json"
     photo = data_dir / "images" / "image_0010.png"
-    r = run_cli("--synthetic-scan", "sfm", "--n-scans", "2", "--detect", "--methods", "ours",
+    r = run_cli("--synthetic-scan", "sfm", "--n-scans", "2", "--detect", "--landmark-detector", "dlib",
+                "--methods", "ours",
                 "--conditions", "cooperative", "--frames", "2", "--video-frames", "4",
                 "--appearance", photo, "--report", report, "--quiet")
     assert r.returncode == 0, r.stderr
     rep = json.loads(report.read_text())
     assert rep["scan"]["appearance"] == ["vertex colours of image_0010.png"]
     video = rep["videos"]["cooperative"]
-    assert video["landmarks"].startswith("dlib") and rep["settings"]["detect"] is True
+    assert video["landmarks"] == "dlib hog on rendered frames" and rep["settings"]["detect"] == "dlib hog"
     err = video["detector_error_px"]
     assert err["over"] == "mean over 2 subjects" and len(err["frames_detected"]) == 2
     assert 0.5 < err["inner_rms"] < 20.0
@@ -555,14 +556,16 @@ def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
         report.run(james, sfm, ["ours-independent", "gar"], ["outdoor"], video_frames=6)
 
 
-def test_detected_landmarks_on_rendered_frames(james, sfm):
-    pytest.importorskip("dlib")
+@pytest.mark.parametrize("detector, package", [("dlib", "dlib"), ("facemesh", "mediapipe")])
+def test_detected_landmarks_on_rendered_frames(james, sfm, detector, package):
+    pytest.importorskip(package)
     from evaluation.florence.protocol import video_landmarks
     from evaluation.videos import synthetic_video
 
-    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=True)
+    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0,
+                                             detect=(detector, "auto"))
     assert frames is None
-    assert desc["landmarks"].startswith("dlib") and size == (256, 256)
+    assert desc["landmarks"].startswith(detector) and size == (256, 256)
     truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
     d = np.linalg.norm(lm[:, 17:] - truth[:, 17:], axis=-1)
     assert np.isfinite(lm).all() and np.nanmedian(d) < 10.0
@@ -647,7 +650,7 @@ def test_subjects_wear_a_photos_colours(sfm, data_dir):
     assert colors.shape == (sfm.n_vertices, 3) and 0 <= colors.min() and colors.max() <= 1
     scan = model_scan(sfm, 3, colors=colors)
     assert scan.colors.shape == scan.vertices.shape
-    lm, _, desc, _ = video_landmarks(scan, sfm, "cooperative", 2, 6, seed=0, detect=True)
+    lm, _, desc, _ = video_landmarks(scan, sfm, "cooperative", 2, 6, seed=0, detect=("dlib", "auto"))
     video = synthetic_video(scan, "cooperative", sfm.landmark_positions(), 6, 2, seed=0)
     truth = project_landmarks(scan, video.sampled_cameras(),
                               frontal_frame(scan.landmarks, sfm.landmark_positions()))

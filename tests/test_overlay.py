@@ -177,3 +177,21 @@ def test_crop_is_the_face_box_of_the_full_overlay(photo_fit):
     assert face_box(res, margin=100.0) == (0, 0, img.shape[1], img.shape[0])  # clipped
     with pytest.raises(InputError, match="crop=-1"):
         draw_overlay(img, res, crop=-1)
+
+
+def test_dense_landmarks_are_drawn_as_small_marks(photo_fit):
+    # a fit to 478 face-mesh points: every given and fitted point drawn, smaller than the 68's
+    from dataclasses import replace
+
+    img, res, _ = photo_fit
+    rng = np.random.default_rng(0)
+    lo, hi = np.nanmin(res.landmarks[0], 0), np.nanmax(res.landmarks[0], 0)
+    fitted = rng.uniform(lo, hi, (1, 478, 2))
+    dense = replace(res, landmarks=fitted + rng.normal(0, 2, fitted.shape), fitted_landmarks=fitted)
+    out = draw_overlay(img, dense, mesh=None)
+    for x, y in np.round(fitted[0]).astype(int):
+        assert tuple(out[y, x]) == FITTED_COLOR
+    r68 = max(2, min(img.shape[:2]) // 250)
+    changed68 = _changed(draw_overlay(img, res, mesh=None), img).sum() / 68
+    changed478 = _changed(out, img).sum() / 478
+    assert r68 >= 2 and changed478 < changed68     # smaller marks per point

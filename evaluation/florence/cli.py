@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from morphable.cli.common import add_detector_arguments
+from morphable.detection import resolve_detectors
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from morphable.metrics import CROP_RADIUS_MM
@@ -39,7 +41,7 @@ def _parser():
     p.add_argument("--n-scans", type=int, default=8, help="subjects for --synthetic-scan")
     p.add_argument("--appearance", nargs="+", metavar="PHOTO",
                    help="--synthetic-scan: photos of faces (landmarks in the .pts beside, else "
-                        "dlib's) whose colours the subjects wear in turn in rendered frames "
+                        "detected) whose colours the subjects wear in turn in rendered frames "
                         "(--detect, gar); default untextured")
     p.add_argument("--definition-noise", type=float, default=0.0, metavar="MM",
                    help="--synthetic-scan: landmark definition error added to the subjects' "
@@ -60,7 +62,9 @@ def _parser():
                         "the table then gives mean ± std over the draws (per-vertex errors "
                         "and heat maps: the first draw)")
     p.add_argument("--detect", action="store_true",
-                   help="landmarks from dlib on rendered frames instead of projected scan landmarks")
+                   help="landmarks detected on rendered frames (--landmark-detector, --face-detector) "
+                        "instead of projected scan landmarks")
+    add_detector_arguments(p)
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
     p.add_argument("--n-iterations", type=int,
                    help="nonlinear iterations of ours (default: the fitter's)")
@@ -118,6 +122,8 @@ def main(argv=None) -> int:
         raise InputError("give either --scan with --scan-landmarks, or --synthetic-scan")
     if args.scan is not None and args.scan_landmarks is None:
         raise InputError(f"--scan {args.scan}: --scan-landmarks is required")
+    resolve_detectors(args.landmark_detector, args.face_detector)  # a bad choice fails first
+    detect = (args.landmark_detector, args.face_detector) if args.detect else None
     model = load_model(args.model)
     if args.synthetic_scan:
         scan_model = load_model(args.synthetic_scan)
@@ -165,18 +171,18 @@ def main(argv=None) -> int:
             report = run_model_scans(scan_model, model, args.methods, args.conditions,
                                      args.n_scans, args.seed, definition_mm=args.definition_noise,
                                      expression_std=args.expression_std,
-                                     appearances=looks, n_sampled=args.frames, detect=args.detect,
+                                     appearances=looks, n_sampled=args.frames, detect=detect,
                                      n_frames=args.video_frames, **common)
         elif args.n_videos != 1:
             if args.frames_dir:
                 raise InputError("--n-videos draws synthetic videos; --frames-dir has one")
             report, errors = run_videos(scan, model, args.methods, args.conditions,
                                         args.n_videos, args.seed, n_sampled=args.frames,
-                                        n_frames=args.video_frames, detect=args.detect, **common)
+                                        n_frames=args.video_frames, detect=detect, **common)
         else:
             report, errors = run_protocol(scan, model, args.methods, args.conditions,
                                           args.frames, args.video_frames, args.seed,
-                                          detect=args.detect, frames_dir=args.frames_dir,
+                                          detect=detect, frames_dir=args.frames_dir,
                                           focal_px=args.focal_px, **common)
     cells = [cell for per in report["methods"].values() for cell in per.values()]
     if cells and all("error" in cell for cell in cells):

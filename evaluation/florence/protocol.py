@@ -120,10 +120,12 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
         save_image_png(tmp, img)
 
 
-def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False):
+def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False,
+                        detector=("auto", "auto")):
     """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H),
     the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None, (k,) bool: the
-    frames without a ``.pts`` whose landmarks dlib detected)."""
+    frames without a ``.pts`` whose landmarks were detected, with ``detector`` =
+    (landmark detector, face detector) of :func:`morphable.detection.detect_landmarks`)."""
     from PIL import Image
 
     from morphable.io.landmark_files import read_pts
@@ -145,7 +147,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
         if found:
             from ..videos import detect_landmarks
 
-            out.append(detect_landmarks(image))
+            out.append(detect_landmarks(image, *detector))
         else:
             out.append(read_pts(p.with_suffix(".pts")))
         images.append(image)
@@ -154,13 +156,15 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
 
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
-                    detect: bool = False, frames_dir=None, with_frames: bool = False):
+                    detect=None, frames_dir=None, with_frames: bool = False):
     """Landmarks of the sampled frames of one video -> ((k, 68, 2) px, (W, H), description,
     frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
-    ``frames_dir`` — when ``with_frames``, else None."""
+    ``frames_dir`` — when ``with_frames``, else None. ``detect``: None (projected scan
+    landmarks) or (landmark detector, face detector) run on the rendered frames (and on the
+    frames of ``frames_dir`` that have no ``.pts``)."""
     if frames_dir is not None:
         lm, size, frames, detected = _frames_from_folder(Path(frames_dir), condition, n_sampled,
-                                                         with_frames)
+                                                         with_frames, detect or ("auto", "auto"))
         return lm, size, {"source": str(Path(frames_dir) / condition),
                           "detected": detected.tolist()}, frames
     video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
@@ -177,8 +181,10 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     if detect:
         from ..videos import detect_landmarks, frontal_frame, project_landmarks
 
-        lm = np.stack([detect_landmarks(im) for im in frames])
-        desc["landmarks"] = "dlib on rendered frames"
+        from morphable.detection import describe
+
+        lm = np.stack([detect_landmarks(im, *detect) for im in frames])
+        desc["landmarks"] = f"{describe(*detect)} on rendered frames"
         # how far the detector is from the scan's own landmarks, projected without noise
         truth = project_landmarks(scan, video.sampled_cameras(),
                                   frontal_frame(scan.landmarks, model.landmark_positions()))
@@ -188,6 +194,13 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     desc["detected"] = [bool(detect)] * len(lm)
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
     return lm, video.image_size, desc, frames if with_frames else None
+
+
+def _detect_setting(detect):
+    """The report's ``detect`` setting: the detectors as run (e.g. "facemesh auto"), or None."""
+    from morphable.detection import describe
+
+    return describe(*detect) if detect else None
 
 
 def detector_error(detected, truth) -> dict:
@@ -204,7 +217,7 @@ def detector_error(detected, truth) -> dict:
 
 
 def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_frames: int = 30,
-                 seed: int = 0, detect: bool = False, frames_dir=None, efforts: dict | None = None,
+                 seed: int = 0, detect=None, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
                  landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None,
                  prepared: dict | None = None):
@@ -269,7 +282,7 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                       "interocular_mm": round(scan.interocular_mm, 2),
                       "n_landmarks": int(np.isfinite(scan.landmarks).all(1).sum())}
     report["settings"] = {"model": model.name, "frames": n_sampled, "video_frames": n_frames,
-                          "seed": seed, "detect": detect, "efforts": efforts}
+                          "seed": seed, "detect": _detect_setting(detect), "efforts": efforts}
     return report, errors
 
 

@@ -21,8 +21,20 @@ def add_fitting_arguments(parser) -> None:
                         help="huber: Huber loss against outlying landmarks (default: least squares)")
     parser.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
                         help="landmark noise in px, or auto: estimated from the fit (default 1)")
-    parser.add_argument("--detector", choices=("hog", "cnn"), default="hog",
-                        help="dlib face detector for images without landmark files")
+    add_detector_arguments(parser)
+
+
+def add_detector_arguments(parser) -> None:
+    """The detector choice of every command that detects landmarks (images without files)."""
+    from ..detection import FACE_DETECTORS, LANDMARK_DETECTORS
+
+    parser.add_argument("--landmark-detector", choices=LANDMARK_DETECTORS, default="auto",
+                        help="landmarks for images without landmark files: facemesh (mediapipe, 478 "
+                             "points), dlib (68), auto: facemesh when installed (default)")
+    faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
+    parser.add_argument("--face-detector", choices=tuple(faces), default="auto",
+                        help="the landmark detector's face detector: short-range or full-range "
+                             "(facemesh), hog or cnn (dlib); default auto: its own default")
 
 
 def landmark_std_arg(text: str):

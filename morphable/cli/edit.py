@@ -10,14 +10,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_model_argument, model_from, parse_weights, renderer_options
+from .common import add_detector_arguments, add_model_argument, model_from, parse_weights, renderer_options
 
 
 def add_parser(sub):
     p = sub.add_parser("edit", help="change the pose/expression of a face in an image "
                                     "(neural renderer inversion)")
     p.add_argument("image", metavar="IMAGE")
-    p.add_argument("--landmarks", metavar="PTS", help="iBUG .pts or .ljson (default: dlib)")
+    p.add_argument("--landmarks", metavar="PTS", help="iBUG .pts/.ljson (68) or face-mesh .npy/.json "
+                                                      "(478) (default: detect, see --landmark-detector)")
+    add_detector_arguments(p)
     add_model_argument(p)
     p.add_argument("--renderer", choices=("gar", "classical"), default="gar")
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
@@ -55,13 +57,14 @@ def run(args):
         name = item.partition("=")[0]
         expression[name] = w[model.expression_index(name)]
     options = renderer_options(args.inverter, what="edit")
-    from ..fitting.detect import read_image
+    from ..detection import read_image
     from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
     from ..raster import save_image_png
     from ..refinement import edit, refine
 
-    res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model)
+    res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model,
+                       landmark_detector=args.landmark_detector, face_detector=args.face_detector)
     fit, report, state = refine(read_image(args.image), res, args.renderer, steps=args.steps,
                                 renderer_options=options, return_state=True)
     edited = edit(state, yaw=args.yaw, pitch=args.pitch, roll=args.roll, expression=expression)

@@ -1,7 +1,9 @@
-"""``morphable fit``: fit the model to the 68 landmarks of one or more images of a person.
+"""``morphable fit``: fit the model to the landmarks of one or more images of a person.
 
-Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson``, one per image) or are
-detected with dlib (and then fitted with a detector's error, ``DETECTED_MODEL_STD_MM``). Writes
+Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson`` 68 points, or 478
+face-mesh points in ``.npy``/``.json``, one file per image) or are detected
+(``--landmark-detector``, ``--face-detector``; then fitted with a detector's error,
+``DETECTED_MODEL_STD_MM``). Writes
 the mesh (OBJ with UVs; with several images the shared identity without expression) and a JSON
 report; both are written only once the fit has succeeded.
 """
@@ -17,7 +19,8 @@ def add_parser(sub):
     p = sub.add_parser("fit", help="fit identity, expression and pose to 2D landmarks of images")
     p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one person")
     p.add_argument("--landmarks", nargs="+", metavar="PTS",
-                   help="iBUG .pts (or .ljson) files, one per image (default: detect with dlib)")
+                   help="iBUG .pts/.ljson (68) or face-mesh .npy/.json (478) files, one per image "
+                        "(default: detect, see --landmark-detector)")
     add_model_argument(p)
     add_fitting_arguments(p)
     p.add_argument("--independent", action="store_true",
@@ -63,7 +66,8 @@ def run(args):
     images = [Path(p) for p in args.images]
     res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
                             focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
-                            shared_identity=not args.independent, detector=args.detector,
+                            shared_identity=not args.independent,
+                            landmark_detector=args.landmark_detector, face_detector=args.face_detector,
                             landmark_std_px=args.landmark_std)
     if args.refine:
         res, report = _refine(args, res, report, images)
@@ -85,7 +89,7 @@ def run(args):
 
 def _refine(args, res, report, images):
     """Photometric refinement of every frame (:func:`morphable.refinement.refine`)."""
-    from ..fitting.detect import read_image
+    from ..detection import read_image
     from ..refinement import refine
 
     options = renderer_options(args.inverter)

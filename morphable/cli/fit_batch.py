@@ -33,6 +33,7 @@ def add_parser(sub):
 
 def run(args):
     from ..batch import read_manifest, run_batch
+    from ..detection import resolve_detectors
     from ..fitting.files import fit_item
     from ..io.registry import load_model
 
@@ -53,9 +54,11 @@ def run(args):
         it.images = [str(Path(x).absolute()) for x in it.images]
         it.landmarks = [None if x is None else str(Path(x).absolute()) for x in it.landmarks]
     load_model(args.model)  # an unknown model fails here, once, not in every item
+    resolve_detectors(args.landmark_detector, args.face_detector)  # likewise a bad detector choice
     options = {"model": args.model, "camera": args.camera, "focal_px": args.focal_px,
                "n_iterations": args.n_iterations, "robust": args.robust,
-               "independent": args.independent, "detector": args.detector,
+               "independent": args.independent,
+               "landmark_detector": args.landmark_detector, "face_detector": args.face_detector,
                "landmark_std_px": args.landmark_std,
                "mesh_format": args.mesh_format}
     try:

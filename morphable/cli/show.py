@@ -92,7 +92,7 @@ def run(args):
     errors = _errors(args.errors, len(vertices)) if args.errors else None
     image = None
     if args.image:
-        from ..fitting.detect import read_image
+        from ..detection import read_image
 
         # decoded here: VTK's reader crashes the process on a truncated or corrupt file
         image = read_image(args.image)

@@ -20,13 +20,13 @@ Modules, each usable alone:
   outline's silhouette;
 - :mod:`.synthetic` — detector-like landmarks of a model face (tests, benchmarks);
 - :mod:`.scan_fit` — a model fitted to a 3D scan: :func:`fit_surface` (point-to-plane) and
-  :func:`fit_landmarks_3d` (its 3D landmarks), on the :func:`outer_skin` vertices;
-- :mod:`.detect` — dlib face and 68-point detection.
+  :func:`fit_landmarks_3d` (its 3D landmarks), on the :func:`outer_skin` vertices.
+
+Detection in photos is :mod:`morphable.detection`.
 
 >>> from morphable.fitting import fit_landmarks, FitResult   # doctest: +SKIP
 
-numpy only, at import time and in the landmark fit; dlib loads inside the detection functions,
-scipy and open3d inside the scan fits.
+numpy only, at import time and in the landmark fit; scipy and open3d load inside the scan fits.
 """
 from .correspondences import Correspondences, LandmarkBank, landmark_bank, slide_contours
 from .landmark_fit import fit_landmarks
@@ -38,14 +38,4 @@ from .synthetic import simulate_landmarks
 
 __all__ = ["fit_landmarks", "FitResult", "estimate_affine_pose", "project", "solve_identity",
            "solve_expression", "landmark_bank", "LandmarkBank", "Correspondences", "slide_contours",
-           "simulate_landmarks", "fit_surface", "fit_landmarks_3d", "outer_skin",
-           "detect_landmarks", "detect_faces"]
-
-
-def __getattr__(name):
-    # detection pulls dlib: load it only when asked for
-    if name in ("detect_landmarks", "detect_faces"):
-        from . import detect
-
-        return getattr(detect, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+           "simulate_landmarks", "fit_surface", "fit_landmarks_3d", "outer_skin"]

@@ -2,10 +2,12 @@
 
 The steps of ``morphable fit`` and of each item of ``morphable fit-batch``, usable alone:
 
-- :func:`image_size` reads only an image's header (no decoding, so a huge image costs nothing);
-- :func:`read_landmark_file` reads iBUG ``.pts`` or menpo ``.ljson`` 68-point files and checks
-  them against the image;
-- :func:`fit_files` fits (detecting landmarks with dlib where no file is given);
+- :func:`morphable.detection.image_size` reads only an image's header (no decoding, so a huge
+  image costs nothing);
+- :func:`read_landmark_file` reads iBUG ``.pts`` or menpo ``.ljson`` 68-point files, or 478
+  face-mesh points (``.npy``, ``.json``), and checks them against the image;
+- :func:`fit_files` fits (detecting landmarks where no file is given, with the landmark and
+  face detectors of :mod:`morphable.detection`);
 - :func:`write_fit` writes the mesh and the report atomically, only after the fit succeeded;
 - :func:`fit_item` is the work function of :func:`morphable.batch.run_batch`.
 
@@ -22,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..detection.images import image_size
 from ..errors import InputError
 
-__all__ = ["image_size", "read_landmark_file", "fit_files", "write_fit", "fit_item",
+__all__ = ["read_landmark_file", "fit_files", "write_fit", "fit_item",
            "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
 
 MAX_DETECT_MEGAPIXELS = 40.0
@@ -36,52 +39,39 @@ OUTSIDE_MARGIN = 0.1
 border are annotated that way); further out, the file does not belong to the image."""
 
 
-def image_size(path) -> tuple[int, int]:
-    """(W, H) pixels of an image file, from its header only.
-
-    Raises InputError naming the file when it is missing, unreadable or not an image.
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    path = Path(path)
-    try:
-        with Image.open(path) as im:
-            W, H = im.size
-            # checks the PNG chunks' CRCs to the end of the file without decoding: a
-            # truncated or corrupt image is refused here, not after a minute of fitting
-            im.verify()
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such image") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, not an image") from None
-    except Image.DecompressionBombError as e:
-        raise InputError(f"{path}: image too large ({e})") from None
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as e:
-        raise InputError(f"{path}: cannot read image ({e})") from None
-    if W <= 0 or H <= 0:
-        raise InputError(f"{path}: image has no pixels ({W}x{H})")
-    return int(W), int(H)
-
-
 def read_landmark_file(path, size=None) -> np.ndarray:
-    """68 iBUG landmarks from a ``.pts`` or ``.ljson`` file, checked against an image size.
+    """Landmarks from a file, checked against an image size.
 
     Parameters
     ----------
-    path : .pts (1-based pixels) or .ljson (menpo, 68 points in iBUG order or labelled)
+    path : one of
+        ``.pts`` — 68 iBUG points, 1-based pixels;
+        ``.ljson`` — menpo, 68 points in iBUG order or labelled;
+        ``.npy`` — a (478, 2) array of face-mesh points (mediapipe's order), 0-based pixels;
+        ``.json`` — 478 face-mesh points as a list of ``[x, y]`` or ``{"landmarks": [...]}``,
+        0-based pixels.
     size : (W, H) pixels, optional; landmarks further than ``OUTSIDE_MARGIN`` outside are refused
 
     Returns
     -------
-    (68, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing points (.ljson).
+    (68, 2) or (478, 2) float64 pixels, 0-based, x right, y down; NaN rows for missing
+    points (.ljson only).
     """
+    from ..detection.facemesh import N_POINTS
     from ..io.landmark_files import read_ljson, read_pts
     from ..ibug68 import MENPO_LABELS, from_menpo_labels
 
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such landmark file")
-    if path.suffix.lower() == ".ljson":
+    suffix = path.suffix.lower()
+    if suffix in (".npy", ".json"):
+        pts = _read_facemesh_points(path)
+        if pts.shape != (N_POINTS, 2):
+            raise InputError(f"{path}: expected {N_POINTS} x 2 face-mesh landmarks, got shape {pts.shape}")
+        if not np.isfinite(pts).all():
+            raise InputError(f"{path}: coordinates contain NaN or inf")
+    elif suffix == ".ljson":
         pts, labels = read_ljson(path)
         if pts.shape[1] != 2:
             raise InputError(f"{path}: expected 2D landmarks, got {pts.shape[1]}D points")
@@ -89,7 +79,7 @@ def read_landmark_file(path, size=None) -> np.ndarray:
             pts = from_menpo_labels(pts, labels, str(path))
     else:
         pts = read_pts(path)
-    if pts.shape != (68, 2):
+    if suffix not in (".npy", ".json") and pts.shape != (68, 2):
         raise InputError(f"{path}: expected 68 iBUG landmarks, got {len(pts)}")
     if size is not None:
         W, H = size
@@ -104,30 +94,58 @@ def read_landmark_file(path, size=None) -> np.ndarray:
     return pts
 
 
-def _detect(path, size, detector: str):
-    from .detect import detect_landmarks
+def _read_facemesh_points(path: Path) -> np.ndarray:
+    """A ``.npy`` array or a ``.json`` list (bare or under ``"landmarks"``) -> float64 array
+    of whatever shape it holds; InputError naming the file when it is not numbers."""
+    try:
+        if path.suffix.lower() == ".npy":
+            data = np.load(path, allow_pickle=False)
+        else:
+            data = json.loads(path.read_text())
+            if isinstance(data, dict):
+                if "landmarks" not in data:
+                    raise InputError(f"{path}: expected a list of [x, y] or {{\"landmarks\": [...]}}")
+                data = data["landmarks"]
+        return np.asarray(data, dtype=np.float64)
+    except (OSError, ValueError, TypeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read landmarks ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+
+
+def _detect(path, size, landmark_detector: str, face_detector: str) -> np.ndarray:
+    from ..detection import detect_landmarks
 
     mp = size[0] * size[1] / 1e6
     if mp > MAX_DETECT_MEGAPIXELS:
         raise InputError(f"{path}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
                          f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
-    return detect_landmarks(path, detector=detector)
+    return detect_landmarks(path, landmark_detector=landmark_detector, face_detector=face_detector)
+
+
+def _as_ibug68(points: np.ndarray) -> np.ndarray:
+    """The fitter takes 68 iBUG points (until it takes the 478 face-mesh ones): a face mesh's
+    478 go through :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`."""
+    if len(points) == 68:
+        return points
+    from ..detection.facemesh import to_ibug68
+
+    return to_ibug68(points)
 
 
 def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
               n_iterations: int = 4, robust=None, shared_identity: bool = True,
-              detector: str = "hog", landmark_std_px=1.0):
-    """Fit a model to one or more images of a person, from landmark files or dlib detection.
+              landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0):
+    """Fit a model to one or more images of a person, from landmark files or detection.
 
     Parameters
     ----------
     images : list of paths
-    landmarks : list of paths or None (one per image; a None entry is detected)
+    landmarks : list of paths or None (one per image; a None entry is detected); see
+        :func:`read_landmark_file`
     model : MorphableModel or name/path for ``load_model``
     camera, focal_px, n_iterations, landmark_std_px : see :func:`morphable.fitting.fit_landmarks`
     robust : None or "huber" (see :func:`morphable.fitting.fit_landmarks`)
     shared_identity : bool, one identity for all images (False: independent fits)
-    detector : "hog" or "cnn" (dlib)
+    landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
 
     Frames whose landmarks are detected are fitted with ``model_std_mm``
     :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
@@ -137,6 +155,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     -------
     (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
     """
+    from ..detection import describe
     from . import fit_landmarks
     from .noise import frame_model_std
 
@@ -149,7 +168,8 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     if int(n_iterations) < 0:
         raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
     sizes = [image_size(p) for p in images]
-    lms = [read_landmark_file(lm, s) if lm else _detect(p, s, detector)
+    source = describe(landmark_detector, face_detector)  # a bad choice fails before any work
+    lms = [_as_ibug68(read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector))
            for p, lm, s in zip(images, landmarks, sizes)]
     if isinstance(model, (str, Path)):
         from ..io.registry import load_model
@@ -161,7 +181,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
                         robust=robust, shared_identity=shared_identity,
                         landmark_std_px=landmark_std_px, model_std_mm=model_std)
     report = res.to_dict(images=[str(p) for p in images])
-    report["landmarks"] = [str(lm) if lm else f"dlib {detector}" for lm in landmarks]
+    report["landmarks"] = [str(lm) if lm else source for lm in landmarks]
     return res, report
 
 
@@ -193,7 +213,8 @@ def fit_item(item, folder, options: dict) -> dict:
     (all its images together) and write ``fit.obj`` and ``fit.json`` into ``folder``.
 
     ``options``: ``model``, ``camera``, ``focal_px``, ``n_iterations``, ``robust``, ``independent``,
-    ``detector``, ``landmark_std_px``, ``mesh_format`` (suffix, default ``obj``).
+    ``landmark_detector``, ``face_detector``, ``landmark_std_px``, ``mesh_format`` (suffix,
+    default ``obj``).
 
     Returns a summary for the results log: n_frames, landmark RMSE (px, per frame and mean),
     yaw/pitch/roll of each frame (degrees) and the fit's runtime.
@@ -204,7 +225,8 @@ def fit_item(item, folder, options: dict) -> dict:
                             focal_px=options.get("focal_px"), n_iterations=options.get("n_iterations", 4),
                             robust=options.get("robust"),
                             shared_identity=not options.get("independent", False),
-                            detector=options.get("detector", "hog"),
+                            landmark_detector=options.get("landmark_detector", "auto"),
+                            face_detector=options.get("face_detector", "auto"),
                             landmark_std_px=options.get("landmark_std_px", 1.0))
     suffix = options.get("mesh_format", "obj").lstrip(".")
     write_fit(res, report, mesh=folder / f"fit.{suffix}", report_path=folder / "fit.json")
