@@ -53,7 +53,7 @@ def london_pairs(root: Path, n: int | None = None) -> list:
 def identity_meshes(method: str, paths, model) -> tuple[np.ndarray, np.ndarray, dict]:
     """(P, V, 3) mm identity meshes of the photos (NaN where the method failed), (P,) wall ms,
     and {photo: one-line reason} of the failures."""
-    from morphable.detection import detect_landmarks, to_ibug68
+    from morphable.detection import detect_ibug68, detect_landmarks
     from morphable.detection.images import read_image
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM
@@ -72,10 +72,10 @@ def identity_meshes(method: str, paths, model) -> tuple[np.ndarray, np.ndarray, 
         size = (img.shape[1], img.shape[0])
         t = time.perf_counter()
         try:
-            pts = detect_landmarks(img, landmark_detector=detector)
             if eos is not None:
-                out[i] = eos.fit_with_identity(to_ibug68(pts), size)[2]
+                out[i] = eos.fit_with_identity(detect_ibug68(img, landmark_detector=detector), size)[2]
             else:
+                pts = detect_landmarks(img, landmark_detector=detector)
                 res = fit_landmarks(model, pts, size, model_std_mm=DETECTED_MODEL_STD_MM)
                 out[i] = res.neutral_vertices()
         except (FitError, InputError) as e:

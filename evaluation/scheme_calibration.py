@@ -11,8 +11,10 @@ surface (the rasteriser's triangle and barycentric weights at that pixel), which
 of the model's surface. Per point, the mean of those surface points (on the mean shape) becomes
 its new position, and the per-coordinate RMS distance of the hits from it (on each subject's
 own surface) its ``definition_std_mm``. A point is used in a render only where the model point
-is visible there (a hidden point's hit lands on whatever is in front of it). The sliding oval
-points keep their registration (they are defined by the outline) and their definition error.
+is visible there (a hidden point's hit lands on whatever is in front of it). A point and its mirror
+image are averaged (the detector and the model are left-right symmetric). The sliding oval
+points and the chin that ends them keep their registration (they are defined by the outline)
+and their definition error.
 
 The photos only lend skin, brows and lips: the geometry is the model's. By default the first 20
 people of the London set (CC BY 4.0; neutral front photos) are used, so that the calibrated
@@ -39,6 +41,9 @@ VIEWS = tuple((y, 0.0) for y in (-60, -45, -30, -15, 0, 15, 30, 45, 60)) + ((0.0
 """(yaw, pitch) degrees of the calibration renders."""
 
 IMAGE = 512
+
+STD_RANGE_MM = (1.0, 8.0)
+"""Calibrated definition errors are clipped to this range, mm per coordinate."""
 
 
 def render_subject(vertices, triangles, colors, yaw, pitch, image_size=IMAGE):
@@ -95,6 +100,8 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
     tri_all = np.asarray(model.triangles)
     mean = np.asarray(model.mean, np.float64)
     fixed = ~scheme.sliding & scheme.defined
+    if scheme.chin >= 0:
+        fixed[scheme.chin] = False          # it ends the outline: defined by it, like the oval
     hits_mean, hits_subj, subj_of = [], [], []     # per sample: (L, 3) mm, NaN where unused
     subjects, failures, t0 = [], 0, time.perf_counter()
     for s in range(n_subjects):
@@ -121,7 +128,11 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
     Hm, Hs = np.stack(hits_mean), np.stack(hits_subj)
     count = np.isfinite(Hm[..., 0]).sum(0)
     use = fixed & (count >= 5)
-    centre = np.nanmean(Hm[:, use], axis=0)
+    use &= use[scheme.mirror]
+    # the detector and the model are left-right symmetric: a point and its mirror image
+    # (x reflected) are two estimates of one definition
+    centre = np.nanmean(Hm, axis=0)
+    centre = 0.5 * (centre + centre[scheme.mirror] * [-1.0, 1.0, 1.0])[use]
     v_new, b_new, _ = project_to_surface(centre, model)
     vertices, barycentric = scheme.vertices.copy(), scheme.barycentric.copy()
     vertices[use], barycentric[use] = v_new, b_new
@@ -129,7 +140,12 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
     # spread: each hit against the new point on the same subject's surface
     new_pts = np.stack([np.einsum("lkc,lk->lc", v[vertices], barycentric) for v in subjects])
     d = Hs[:, use] - new_pts[np.asarray(subj_of)][:, use]
-    std[use] = np.sqrt(np.nanmean((d ** 2).sum(-1), axis=0) / 3.0)
+    # rounded to 0.5 mm (about the estimate's own noise over ~200 renders): a fit groups the
+    # points of one definition error, so a few distinct values keep it fast
+    ms = np.full(scheme.n, np.nan)
+    ms[use] = np.nanmean((d ** 2).sum(-1), axis=0) / 3.0
+    ms = 0.5 * (ms + ms[scheme.mirror])
+    std[use] = np.clip(np.round(2.0 * np.sqrt(ms[use])) / 2.0, STD_RANGE_MM[0], STD_RANGE_MM[1])
     old = scheme.points(mean)
     calibrated = type(scheme)(
         name=scheme.name, model_name=scheme.model_name, vertices=vertices, barycentric=barycentric,

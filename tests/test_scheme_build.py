@@ -49,7 +49,7 @@ def test_committed_sidecar_loads_and_lies_on_the_surface(name, request, canonica
     assert P[s.chin, 1] < P[slides, 1].min() and abs(P[s.chin, 0]) < 1.0
     np.testing.assert_array_equal(s.mirror[s.outline_right], s.outline_left)
     # the forehead's oval points are fixed surface points
-    assert not s.sliding[[10, 338, 109]].any() and s.sliding.sum() == 23
+    assert not s.sliding[[10, 338, 109]].any() and s.sliding.sum() == 22 and not s.sliding[s.chin]
 
 
 @pytest.mark.parametrize("name", ["sfm", "ict"])
@@ -58,15 +58,20 @@ def test_anchor_points_near_the_model_landmarks(name, request):
     s = load_scheme(model)
     P = s.points(model.mean)
     ids = np.asarray(model.landmark_ids)
-    # eye corners, nose tip, mouth corners (and chin): within 2 mm of the iBUG landmark vertices
+    # eye corners, nose tip, mouth corners (and chin): near the iBUG landmark vertices. The
+    # committed sidecars are calibrated to where the detector puts its points
+    # (evaluation.scheme_calibration), a few mm from the registration's anchors (2 mm:
+    # test_registration_close_to_the_placed_canonical_mesh)
     for k, i in zip(sb.ANCHOR_IBUG, sb.ANCHOR_MEDIAPIPE):
         if ids[k] >= 0:
-            assert np.linalg.norm(P[i] - model.mean[ids[k]]) < 2.0, (k, i)
+            assert np.linalg.norm(P[i] - model.mean[ids[k]]) < 6.0, (k, i)
     # the iBUG counterparts of the inner points: near their landmark (the brows are defined
-    # differently: on the brow's edge, within 8 mm; ICT measured 7.0)
+    # differently: on the brow's edge, within 8 mm; ICT measured 7.0; the nose ridge's points
+    # have no height of their own along the ridge: after the calibration 7.8 mm on SFM; the
+    # others within 7 mm: 6.6 mm at the nose wings)
     for k in range(17, 68):
         if ids[k] >= 0:
-            limit = 8.0 if k < 27 else 5.0
+            limit = 9.0 if k < 31 else 7.0
             assert np.linalg.norm(P[s.ibug68[k]] - model.mean[ids[k]]) < limit, k
     assert s.ibug68[8] == s.chin
     assert set(s.ibug68[0:8]) <= set(s.outline_right) and set(s.ibug68[9:17]) <= set(s.outline_left)
@@ -88,14 +93,27 @@ def test_registration_close_to_the_placed_canonical_mesh(sfm_build):
 
 
 def test_rebuild_gives_the_committed_sidecar(sfm, sfm_build):
+    # the committed sidecar is this build, calibrated: the outline points and the chin keep
+    # the build's points and definition error, the fixed points moved a few mm
     committed = load_scheme(sfm)
     s = sfm_build.scheme
-    np.testing.assert_array_equal(s.vertices, committed.vertices)
-    np.testing.assert_allclose(s.barycentric, committed.barycentric, atol=1e-9)
     for k in ("outline_right", "outline_left", "mirror", "ibug68"):
         np.testing.assert_array_equal(getattr(s, k), getattr(committed, k))
-    np.testing.assert_allclose(s.definition_std_mm, committed.definition_std_mm)
     assert s.chin == committed.chin
+    outline = np.r_[s.outline_right, s.outline_left, s.chin]
+    np.testing.assert_array_equal(s.vertices[outline], committed.vertices[outline])
+    np.testing.assert_allclose(s.barycentric[outline], committed.barycentric[outline], atol=1e-9)
+    np.testing.assert_allclose(s.definition_std_mm[outline], committed.definition_std_mm[outline])
+    shift = np.linalg.norm(s.points(sfm.mean) - committed.points(sfm.mean), axis=1)
+    assert np.median(shift) < 5.0 and shift.max() < 20.0
+
+
+def test_registration_anchors_near_the_landmarks(sfm, sfm_build):
+    P = sfm_build.surface
+    ids = np.asarray(sfm.landmark_ids)
+    for k, i in zip(sb.ANCHOR_IBUG, sb.ANCHOR_MEDIAPIPE):
+        if ids[k] >= 0:
+            assert np.linalg.norm(P[i] - sfm.mean[ids[k]]) < 2.0, (k, i)
 
 
 def test_canonical_mesh_and_face_oval(canonical):

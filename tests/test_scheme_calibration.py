@@ -15,18 +15,22 @@ def test_calibration_recovers_a_detectors_offsets(sfm):
     rng = np.random.default_rng(1)
     skin = sfm.skin_vertices()
     front = skin[(sfm.mean[skin, 2] > sfm.mean[skin, 2].max() - 25)
-                 & (np.abs(sfm.mean[skin, 0]) < 30)]
-    pick = rng.choice(front, 30, replace=False)
-    v, b, P = project_to_surface(sfm.mean[pick] + rng.normal(0, 0.3, (30, 3)), sfm)
+                 & (sfm.mean[skin, 0] > 3) & (sfm.mean[skin, 0] < 30)]
+    # 15 points on the subject's left and their mirror images: a symmetric scheme
+    half = sfm.mean[rng.choice(front, 15, replace=False)] + rng.normal(0, 0.3, (15, 3))
+    flip = np.array([-1.0, 1.0, 1.0])
+    v, b, P = project_to_surface(np.r_[half, half * flip], sfm)
+    mirror = np.r_[np.arange(15, 30), np.arange(15)]
     none = np.array([], np.int64)
     start = LandmarkScheme("test30", "sfm", v, b, none, none, -1, np.full(30, 2.0),
-                           np.arange(30), np.full(68, -1))
-    # the "detector" puts each point 2 mm off the scheme's, the same on every face, plus noise
-    offset = rng.normal(0, 1, (30, 3))
+                           mirror, np.full(68, -1))
+    # the "detector" puts each point 2 mm off the scheme's, the same on every face (mirrored
+    # on the other side), plus noise
+    offset = rng.normal(0, 1, (15, 3))
     offset[:, 2] = 0
     offset *= 2.0 / np.linalg.norm(offset, axis=1, keepdims=True)
-    tv, tb, truth = project_to_surface(P + offset, sfm)
-    true_scheme = LandmarkScheme("t", "sfm", tv, tb, none, none, -1, np.ones(30), np.arange(30),
+    tv, tb, truth = project_to_surface(P + np.r_[offset, offset * flip], sfm)
+    true_scheme = LandmarkScheme("t", "sfm", tv, tb, none, none, -1, np.ones(30), mirror,
                                  np.full(68, -1))
     state = {}
 
@@ -55,7 +59,7 @@ def test_calibration_recovers_a_detectors_offsets(sfm):
     assert rep["calibrated_points"] == 30 and rep["renders"] == 12
     assert np.median(before) > 1.5 and np.median(err) < 0.5
     # the spread: 0.5 px detector noise and pixel rounding, well under the 2 mm offsets
-    assert np.median(cal.definition_std_mm) < 0.8
+    assert np.median(cal.definition_std_mm) <= 1.0
 
 
 def test_no_face_anywhere_is_an_error(sfm):

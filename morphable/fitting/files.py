@@ -121,14 +121,15 @@ def _detect(path, size, landmark_detector: str, face_detector: str) -> np.ndarra
     return detect_landmarks(path, landmark_detector=landmark_detector, face_detector=face_detector)
 
 
-def _as_ibug68(points: np.ndarray) -> np.ndarray:
-    """The fitter takes 68 iBUG points (until it takes the 478 face-mesh ones): a face mesh's
-    478 go through :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`."""
-    if len(points) == 68:
-        return points
+def _one_landmark_set(points: list) -> np.ndarray:
+    """(N, L, 2): the frames' landmarks as one set. A fit takes one landmark scheme, so when
+    68-point and 478-point frames are mixed the face mesh's go through
+    :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`."""
+    if len({len(p) for p in points}) == 1:
+        return np.stack(points)
     from ..detection.facemesh import to_ibug68
 
-    return to_ibug68(points)
+    return np.stack([p if len(p) == 68 else to_ibug68(p) for p in points])
 
 
 def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
@@ -169,14 +170,14 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
     sizes = [image_size(p) for p in images]
     source = describe(landmark_detector, face_detector)  # a bad choice fails before any work
-    lms = [_as_ibug68(read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector))
-           for p, lm, s in zip(images, landmarks, sizes)]
+    lms = _one_landmark_set([read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector)
+                             for p, lm, s in zip(images, landmarks, sizes)])
     if isinstance(model, (str, Path)):
         from ..io.registry import load_model
 
         model = load_model(str(model))
     model_std = frame_model_std([not lm for lm in landmarks])
-    res = fit_landmarks(model, np.stack(lms), np.array(sizes, dtype=np.float64), camera=camera,
+    res = fit_landmarks(model, lms, np.array(sizes, dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
                         landmark_std_px=landmark_std_px, model_std_mm=model_std)

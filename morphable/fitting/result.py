@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera
-from ..errors import FitError
+from ..errors import FitError, InputError
 
 __all__ = ["FitResult", "fit_result", "AFFINE_DISTANCE_MM"]
 
@@ -85,7 +85,7 @@ class FitResult:
         """(V, 3) mm: the identity without expression (the per-frame average when not shared)."""
         return self.model.vertices(self.identity, None, dtype=dtype or self.dtype)
 
-    def landmarks_68_px(self) -> np.ndarray:
+    def landmarks_68_px(self, convention: str = "2d") -> np.ndarray:
         """(N, 68, 2) 0-based px: the fitted face's iBUG-68 landmarks in each frame, whatever
         landmark set was fitted, so that any benchmark can compare a fit with 68-point ground
         truth; NaN where the model has no such point (SFM's inner mouth corners).
@@ -94,10 +94,15 @@ class FitResult:
         and camera: fixed points (the chin among them) are projected, jaw points lie on the
         face's outline at the heights where a detector puts them (evenly spaced along the jaw
         line from the outer eye corners' height down to the chin; on the cheek's silhouette
-        where the jaw line turns away)."""
+        where the jaw line turns away). ``convention="3d"`` leaves the jaw points on the jaw line
+        where it is hidden too: projected 3D landmarks, the convention of AFLW2000-3D's ground
+        truth and of 3DDFA."""
         from .synthetic import simulate_landmarks
 
-        return np.stack([simulate_landmarks(self.model, cam, vertices=self.vertices(i, np.float64))
+        if convention not in ("2d", "3d"):
+            raise InputError(f"convention: expected '2d' or '3d', got {convention!r}")
+        return np.stack([simulate_landmarks(self.model, cam, vertices=self.vertices(i, np.float64),
+                                            march=convention == "2d")
                          for i, cam in enumerate(self.cameras)])
 
     def to_dict(self, images=None) -> dict:

@@ -21,7 +21,7 @@ __all__ = ["simulate_landmarks", "jaw_arc_positions", "expected_jaw_points", "ma
 
 
 def simulate_landmarks(model, camera, identity=None, expression=None, vertices=None,
-                       scheme=None) -> np.ndarray:
+                       scheme=None, march: bool = True) -> np.ndarray:
     """Detector-like landmarks of a model face seen by ``camera``.
 
     Parameters
@@ -31,6 +31,10 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     identity, expression : coefficient vectors (see ``MorphableModel.vertices``)
     vertices : (V, 3) mm, optional; overrides the coefficients
     scheme : LandmarkScheme, optional; None: iBUG-68
+    march : bool
+        True: outline points facing away march to the cheek's silhouette (where a 2D
+        annotator or detector puts them, 300-W); False: they stay on the jaw line, hidden or
+        not (projected 3D landmarks, as AFLW2000-3D's ground truth and 3DDFA's output).
 
     Returns
     -------
@@ -62,7 +66,7 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
         view = np.array([[0.0, 0.0, 1.0]])         # normals are already in the camera frame
         for j, p, nz, line in zip(side, interpolate_arc(P, arc, at), facing,
                                   march_lines(model, side, chain_ids, eye_y)):
-            if nz < 0:
+            if march and nz < 0:
                 i0, i1, w = (x[0, 0] for x in march_silhouette(line[None], normals[line][None], view))
                 p = (1 - w) * verts[i0] + w * verts[i1]
             lms[j] = camera.project(p[None])[0]
