@@ -320,18 +320,21 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
 
 
 def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
-    """68 iBUG landmarks of the largest face (:func:`morphable.detection.detect_ibug68`)
-    -> (68, 2) px; all NaN when no face is found, so that the frame is simply not used.
+    """Landmarks of the largest face (:func:`morphable.detection.detect_landmarks`) -> (L, 2)
+    px: the face mesh's 478 or dlib's 68; all NaN when no face is found, so that the frame is
+    simply not used.
 
     Parameters
     ----------
     image : (H, W, 3) uint8 or float in [0, 1]
     landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
     """
-    from morphable.detection import detect_ibug68
+    from morphable.detection import detect_landmarks as detect
+    from morphable.detection import resolve_detectors
     from morphable.errors import FitError
 
     try:
-        return detect_ibug68(image, landmark_detector=landmark_detector, face_detector=face_detector)
+        return detect(image, landmark_detector=landmark_detector, face_detector=face_detector)
     except FitError:
-        return np.full((68, 2), np.nan)
+        n = 478 if resolve_detectors(landmark_detector, face_detector)[0] == "facemesh" else 68
+        return np.full((n, 2), np.nan)

@@ -36,7 +36,8 @@ class Frames:
 
     Attributes
     ----------
-    landmarks : (N, 68, 2) px, NaN where missing
+    landmarks : (N, L, 2) px, NaN where missing: 68 iBUG points, or the face mesh's 478
+        (detected with it); :meth:`ibug68` gives the 68 of either
     image_size : (W, H) px
     images : (N, H, W, 3) float in [0, 1], the frames themselves, or None (read or rendered
         only when a method has ``needs_images``)
@@ -52,6 +53,21 @@ class Frames:
 
     def __len__(self) -> int:
         return len(self.landmarks)
+
+    def ibug68(self) -> np.ndarray:
+        """(N, 68, 2) px: the landmarks as 68 iBUG points (for methods that take only those;
+        the face mesh's through :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`)."""
+        return ibug68_points(self.landmarks)
+
+
+def ibug68_points(landmarks) -> np.ndarray:
+    """(N, 68, 2) px of (N, 68 or 478, 2) landmarks (see :meth:`Frames.ibug68`)."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    if lm.shape[1] == 68:
+        return lm
+    from morphable.detection.facemesh import to_ibug68
+
+    return np.stack([to_ibug68(x) for x in lm])
 
 
 @dataclass
@@ -147,7 +163,8 @@ def _video_fit_options(settings: dict, focal_px, detected=None) -> dict:
 
 class Ours(Method):
     """:func:`morphable.fitting.fit_landmarks` on all the frames, one identity shared by them;
-    the per-frame meshes averaged.
+    the per-frame meshes averaged. It fits whatever points the frames have (the face mesh's
+    478 when it detected them).
 
     ``settings``: the fit's keyword arguments (``n_iterations``, ``n_identity``...). A pinhole
     camera with the video's focal length where it is known (unless ``settings["camera"]`` is
@@ -211,7 +228,7 @@ class Eos(Method):
         if key not in self.fitters:
             self.fitters[key] = EosFitter(**settings)
         t = time.perf_counter()
-        v = self.fitters[key].fit(frames.landmarks, frames.image_size).mean(0)
+        v = self.fitters[key].fit(frames.ibug68(), frames.image_size).mean(0)
         dt = time.perf_counter() - t
         return Reconstruction.from_vertices(self.sfm, v, dt, len(frames))
 
@@ -315,7 +332,7 @@ class Gar(Method):
             raise InputError("method gar: needs the video frames (synthetic videos render them)")
         t = time.perf_counter()
         verts, reports = self.refine_frames(
-            self.model, np.asarray(frames.images), frames.landmarks, self.renderer,
+            self.model, np.asarray(frames.images), frames.ibug68(), self.renderer,
             steps=int(settings.get("steps", 100)),
             fit_options=_video_fit_options({}, frames.focal_px, frames.detected))
         dt = time.perf_counter() - t
@@ -350,8 +367,8 @@ def reconstruct_video(method: Method, frames: Frames, settings: dict | None = No
     class), e.g. ``n_iterations`` of ours, ``num_iterations`` of eos, ``steps`` of gar.
     """
     lm = np.asarray(frames.landmarks, dtype=np.float64)
-    if lm.ndim != 3 or lm.shape[1:] != (68, 2):
-        raise InputError(f"{method.name}: expected (N, 68, 2) landmarks, got {lm.shape}")
+    if lm.ndim != 3 or lm.shape[1] not in (68, 478) or lm.shape[2] != 2:
+        raise InputError(f"{method.name}: expected (N, 68, 2) or (N, 478, 2) landmarks, got {lm.shape}")
     usable = np.isfinite(lm).all(-1).sum(-1) >= MIN_LANDMARKS
     if not usable.any():
         raise FitError(f"{method.name}: no frame has {MIN_LANDMARKS} landmarks")

@@ -20,7 +20,7 @@ from morphable.metrics import CROP_RADIUS_MM, compare_to_scan
 
 from ..scans import Scan, model_scan
 from ..videos import CONDITIONS, sample_frames, synthetic_video
-from .methods import Frames, Reconstruction, prepare_methods, reconstruct_video
+from .methods import Frames, Reconstruction, ibug68_points, prepare_methods, reconstruct_video
 
 __all__ = ["ErrorMap", "evaluate", "video_landmarks", "detector_error", "run_protocol",
            "run_model_scans", "run_videos", "format_table", "save_error_maps", "save_heatmap"]
@@ -122,7 +122,7 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
 
 def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False,
                         detector=("auto", "auto")):
-    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, 68, 2), (W, H),
+    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, L, 2), (W, H),
     the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None, (k,) bool: the
     frames without a ``.pts`` whose landmarks were detected, with ``detector`` =
     (landmark detector, face detector) of :func:`morphable.detection.detect_landmarks`)."""
@@ -151,13 +151,16 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
         else:
             out.append(read_pts(p.with_suffix(".pts")))
         images.append(image)
+    if len({len(x) for x in out}) > 1:            # .pts files and face-mesh detections: 68 for all
+        out = [ibug68_points(x[None])[0] for x in out]
     return (np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
             detected)
 
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
                     detect=None, frames_dir=None, with_frames: bool = False):
-    """Landmarks of the sampled frames of one video -> ((k, 68, 2) px, (W, H), description,
+    """Landmarks of the sampled frames of one video -> ((k, L, 2) px (68, or the face mesh's
+    478 when it detected them), (W, H), description,
     frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
     ``frames_dir`` — when ``with_frames``, else None. ``detect``: None (projected scan
     landmarks) or (landmark detector, face detector) run on the rendered frames (and on the
@@ -188,7 +191,7 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
         # how far the detector is from the scan's own landmarks, projected without noise
         truth = project_landmarks(scan, video.sampled_cameras(),
                                   frontal_frame(scan.landmarks, model.landmark_positions()))
-        desc["detector_error_px"] = detector_error(lm, truth)
+        desc["detector_error_px"] = detector_error(ibug68_points(lm), truth)
     else:
         desc["landmarks"] = "projected scan landmarks + noise"
     desc["detected"] = [bool(detect)] * len(lm)
