@@ -7,8 +7,8 @@ the model's landmark vertex, by the same 3D offset in every frame of a subject. 
 identity for several frames, treating that offset as independent per-frame noise counts N
 frames as N looks at it, and the identity bends to fit it. So ``uv`` is the projection of
 ``m + A alpha + B beta + definition_std_mm * delta`` with one 3D offset ``delta_l ~ N(0, I)``
-per fixed landmark, shared by the frames and estimated with the identity (in the same Schur
-block): marginalising it gives each landmark's residuals across frames the covariance
+per fixed landmark, shared by the frames and estimated with the identity
+(:mod:`~morphable.fitting.offsets`): marginalising it gives each landmark's residuals across frames the covariance
 ``s^2 I + (k definition_std_mm)^2 1 1^T`` (per coordinate, affine, same pose). The offsets
 grow and shrink with the face (times ``1 + g . alpha``, the face's size relative to the mean
 to first order): landmarks fix a face's shape but not its size, which trades against the

@@ -95,6 +95,8 @@ class Problem:
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
+        # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
+        self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
         self.prior = np.r_[np.full(K, self.prior_weight), np.ones(self.D)]
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
