@@ -138,7 +138,7 @@ def normal_equations(pb: Problem, st: State):
             gf = np.where(keep, gf, 0.0)
             Hfa = np.where(keep[:, :, None], Hfa, 0.0)
             if off is not None:
-                off = off._replace(Hfd=np.where(keep[:, :, None, None], off.Hfd, 0.0))
+                off = off._replace(Hfd=np.where(keep[:, None, None, :], off.Hfd, 0.0))
     Haa = gram_hessian(JpR, W, Ja4, pb.gram)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if pb.shared:
