@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["solve_identity", "solve_expression", "ridge_solve", "project_rows", "gram_hessian"]
+__all__ = ["solve_identity", "solve_expression", "ridge_solve", "normal_blocks", "project_rows",
+           "gram_hessian"]
 
 
 def project_rows(P, rows):
@@ -67,8 +68,9 @@ def gram_hessian(P, W, Phi, gram):
     return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm
 
 
-def _normal(P, W, basis, residual, gram=None):
-    """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k)."""
+def normal_blocks(P, W, basis, residual, gram=None):
+    """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k) (P, W, basis
+    and gram as in :func:`solve_identity`, residual (N, L, 2) px)."""
     N, L = W.shape
     Phi = project_rows(P, basis)                                 # (N, 2, L, k): x rows, y rows
     flat = Phi.reshape(N, 2 * L, -1)
@@ -93,7 +95,7 @@ def solve_identity(P, target, W, A, prior, shared: bool, gram=None):
     -------
     (1, K) if shared else (N, K) coefficients in std units.
     """
-    H, g = _normal(P, W, A, target, gram)
+    H, g = normal_blocks(P, W, A, target, gram)
     if shared:
         H, g = H.sum(0, keepdims=True), g.sum(0, keepdims=True)
     return ridge_solve(H, g, prior)
@@ -108,7 +110,7 @@ def solve_expression(P, target, W, B, prior, nonnegative: bool):
 
     Returns (N, E).
     """
-    H, g = _normal(P, W, B, target)
+    H, g = normal_blocks(P, W, B, target)
     E = H.shape[-1]
     beta = ridge_solve(H, g, prior)
     if not nonnegative or E == 0:

@@ -46,8 +46,9 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
         stepped = np.zeros(G, bool)
         gain = np.zeros(G)
         for attempt in range(4):          # retry rejected groups with more damping
-            # independent frames: solve only the active ones still rejected
-            sel = slice(None) if pb.shared else np.flatnonzero(~accepted)
+            # independent frames: solve only the active ones still rejected (all of them: a
+            # slice, not a copy of every frame's rows)
+            sel = slice(None) if pb.shared or not accepted.any() else np.flatnonzero(~accepted)
             gs = slice(None) if pb.shared else sel
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
@@ -115,10 +116,11 @@ def normal_equations(pb: Problem, st: State):
         blocks.append(project_rows(JpR, st.rows[2]))
     Jf4 = _across_rows(pb, np.concatenate(blocks, -1))                  # (N, 2, L, Pf)
     Jf = Jf4.reshape(N, L2, Pf)
-    Ja4 = _across_rows(pb, project_rows(JpR, shared_rows(pb, st)))    # (N, 2, L, K)
+    S = shared_rows(pb, st)                                         # (N, 3, L, K)
+    Ja4 = _across_rows(pb, project_rows(JpR, S))                    # (N, 2, L, K)
     K = Ja4.shape[-1]
     Ja = Ja4.reshape(N, L2, K)
-    off = offset_normal(pb, st, JpR, W, r, Jf4, Ja4) if pb.D else None
+    off = offset_normal(pb, st, JpR, W, r, Jf4, S[0]) if pb.D else None
     w2 = np.concatenate([W, W], 1)[..., None]
     rr = r.transpose(0, 2, 1).reshape(N, L2)
     WJf, WJa = w2 * Jf, w2 * Ja
@@ -138,8 +140,9 @@ def normal_equations(pb: Problem, st: State):
             gf = np.where(keep, gf, 0.0)
             Hfa = np.where(keep[:, :, None], Hfa, 0.0)
             if off is not None:
-                off = off._replace(Hfd=np.where(keep[:, None, None, :], off.Hfd, 0.0))
-    Haa = gram_hessian(JpR, W, Ja4, pb.gram)
+                off = off._replace(C=np.concatenate(
+                    [np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0), off.C[..., N * Pf:]], -1))
+    Haa = gram_hessian(JpR, W, Ja4, None if pb.D else pb.gram)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if pb.shared:
         Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)

@@ -104,11 +104,13 @@ class Problem:
         slides = bool(sliding) and bool(mask[:, sliding].any())
         self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
         # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
-        # with the Huber loss, offsets or a definition error that differs between landmarks
+        # with the Huber loss or a definition error that differs between landmarks (offsets
+        # carry it: then the same weight); with offsets, for the linear stage only (the
+        # nonlinear stage's identity rows gain the offsets' growth)
         fixed_std = self.frame_def_std[bank.fixed_row >= 0]
         uniform = fixed_std.size == 0 or np.all(fixed_std == fixed_std[0])
         self.gram = (fixed_gram(bank, K, self.sliding)
-                     if self.robust is None and K and not self.offsets and uniform else None)
+                     if self.robust is None and K and uniform else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
 
