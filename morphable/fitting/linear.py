@@ -43,26 +43,29 @@ def gram_hessian(P, W, Phi, gram):
     """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
     (N, 2, L, k)), using precomputed Gram blocks of the landmarks whose rows never change.
 
-    With a projection shared by all points (the affine camera) and one weight for all the
-    fixed landmarks of a frame, their part is ``w sum_ij (P^T P)_ij G_ij`` with
-    ``G_ij = sum_l A_l[i]^T A_l[j]`` computed once per model: about 4x fewer operations than
-    the plain product. ``gram = (fixed (F,), moving (M,), G (3, 3, k, k))``; frames that do
-    not qualify (per-point projections, missing or differently weighted fixed landmarks)
-    fall back to the plain product. ``moving`` (indices or a slice) covers every other
-    landmark that can have a weight.
+    With a projection shared by all points (the affine camera) and one weight ``w_g`` for
+    each group g of fixed landmarks of a frame (those of one definition error), their part is
+    ``sum_g w_g sum_ij (P^T P)_ij G_gij`` with ``G_gij = sum_{l in g} A_l[i]^T A_l[j]``
+    computed once per model: far fewer operations than the plain product. ``gram`` is
+    :func:`~morphable.fitting.rows.fixed_gram`'s ``(fixed (F,), group (F,), first (g,),
+    moving, G (g, 3, 3, k, k))``; frames that do not qualify (per-point projections, missing
+    or differently weighted fixed landmarks) fall back to the plain product. ``moving``
+    (indices or a slice) covers every other landmark that can have a weight.
     """
     N, _, L, k = Phi.shape
     W2 = np.concatenate([W, W], 1)
     flat = Phi.reshape(N, 2 * L, k)
     if gram is None or P.ndim != 3:
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
-    fixed, moving, G = gram
+    fixed, group, first, moving, G = gram
     wf = W[:, fixed]
-    ok = (wf[:, :1] > 0) & np.all(wf == wf[:, :1], axis=1, keepdims=True)
-    if not ok.all():
+    wg = wf[:, first]                                               # (N, g)
+    ok = np.all(wg > 0) and np.all(wf == wg[:, group])
+    if not ok:
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
-    H = (M.reshape(N, 9) @ G.reshape(9, k * k)).reshape(N, k, k) * wf[:, :1, None]
+    wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
+    H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
     Pm = Phi[:, :, moving].reshape(N, -1, k)
     Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
     return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm

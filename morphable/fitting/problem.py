@@ -103,14 +103,11 @@ class Problem:
         # drop the jaw): then nothing slides and the outline is never computed
         slides = bool(sliding) and bool(mask[:, sliding].any())
         self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
-        # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
-        # with the Huber loss or a definition error that differs between landmarks (offsets
-        # carry it: then the same weight); with offsets, for the linear stage only (the
-        # nonlinear stage's identity rows gain the offsets' growth)
-        fixed_std = self.frame_def_std[bank.fixed_row >= 0]
-        uniform = fixed_std.size == 0 or np.all(fixed_std == fixed_std[0])
-        self.gram = (fixed_gram(bank, K, self.sliding)
-                     if self.robust is None and K and uniform else None)
+        # the Gram fast path needs one weight for each group of fixed landmarks of a frame
+        # (those of one definition error): never so with the Huber loss; with offsets, for
+        # the linear stage only (the nonlinear stage's identity rows gain the offsets' growth)
+        self.gram = (fixed_gram(bank, K, self.sliding, self.frame_def_std)
+                     if self.robust is None and K else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
 

@@ -19,7 +19,7 @@ import numpy as np
 from .correspondences import across_outline
 from .pose import project, projection_jacobian
 
-__all__ = ["basis_rows", "size_direction", "fixed_gram", "face_size",
+__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "fixed_gram", "face_size",
            "from_coefficients", "offsets", "shared_rows", "gather", "combine", "identity_points",
            "points", "residuals"]
 
@@ -50,21 +50,32 @@ def size_direction(bank, K) -> np.ndarray:
     return np.einsum("li,lik->k", m, A) / (m * m).sum()
 
 
-def fixed_gram(bank, K, sliding):
-    """(fixed landmarks, sliding columns, G (3, 3, K, K)): Gram blocks of the identity rows of
-    the fixed landmarks outside the ``sliding`` columns (a slice, indices or None;
-    ``Problem.sliding``), cached per model, scheme and K (see ``linear.gram_hessian``);
-    landmarks in neither never have a correspondence."""
+MAX_GRAM_GROUPS = 8
+"""Most weight groups of :func:`fixed_gram` (each holds 9 K x K blocks)."""
+
+
+def fixed_gram(bank, K, sliding, std):
+    """(fixed landmarks (F,), their weight group (F,), the first of each group (g,), sliding
+    columns, G (g, 3, 3, K, K)): Gram blocks of the identity rows of the fixed landmarks
+    outside the ``sliding`` columns (a slice, indices or None; ``Problem.sliding``), one per
+    group of landmarks with the same ``std`` (L,) (their definition error: in a frame they
+    have one weight), cached per model, scheme, K and groups (see ``linear.gram_hessian``);
+    landmarks in neither never have a correspondence. None for more than
+    :data:`MAX_GRAM_GROUPS` groups."""
     cache = _GRAMS.setdefault(bank, {})
     sliding = sliding if sliding is not None else slice(0, 0)
     moving = np.arange(len(bank.fixed_row))[sliding]
-    key = (K, moving.tobytes())
+    fixed = np.flatnonzero(bank.fixed_row >= 0)
+    fixed = fixed[~np.isin(fixed, moving)]
+    values, first, group = np.unique(std[fixed], return_index=True, return_inverse=True)
+    if len(values) > MAX_GRAM_GROUPS:
+        return None
+    key = (K, moving.tobytes(), group.tobytes())
     if key not in cache:
-        fixed = np.flatnonzero(bank.fixed_row >= 0)
-        fixed = fixed[~np.isin(fixed, moving)]
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
-        G = np.einsum("lik,ljm->ijkm", Af, Af)
-        cache[key] = (fixed, sliding, np.ascontiguousarray(G))
+        G = np.stack([np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
+                      for g in range(len(values))])
+        cache[key] = (fixed, group, first, sliding, np.ascontiguousarray(G))
     return cache[key]
 
 
