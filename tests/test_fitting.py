@@ -514,6 +514,7 @@ def test_offsets_solved_by_structure_equal_the_dense_fit(sfm, ict, model_name, s
     # the offsets' columns are never materialised and their block is eliminated first: the
     # fit must be the one of the plain dense system (the offsets' columns written out, the
     # shared block solved by its Schur complement), here on 40 surface points and 3 frames
+    # (SFM: the offsets eliminated first; ICT's 53 blendshapes: the frames)
     from morphable.fitting import linear_stage, nonlinear
     from morphable.fitting.linear import solve_identity
     from morphable.fitting.rows import face_size, shared_rows

@@ -5,10 +5,13 @@ coefficients after the identity's, :mod:`~morphable.fitting.noise`): 3 M coeffic
 landmarks, ~1300 for the face mesh's 478 points. An offset moves one landmark along one
 coordinate, so its derivatives are never materialised as columns, and the offsets' own block
 of the normal equations is block-diagonal, one 3x3 block per landmark (its residuals in every
-frame, plus the prior). The offsets are eliminated first, landmark by landmark (batched 3x3
-inverses); what is left is a small dense system over the frames' parameters and the identity
-(``N Pf + K``): :func:`solve_arrow`. The solutions are those of the whole system, so the fit
-(cost, damping, optimum) is the same as with the dense columns.
+frame, plus the prior), as is the frames' (one Pf x Pf block per frame). The whole system is
+solved as an arrow (:func:`solve_arrow`): the offsets are eliminated first, landmark by
+landmark (batched 3x3 inverses), leaving a small dense system over the frames' parameters and
+the identity (``N Pf + K``); or, where the frames' parameters outnumber the offsets' (many
+frames), the frames are, leaving a dense system over the identity and the offsets (``K +
+3 M``). The solutions are those of the whole system, so the fit (cost, damping, optimum) is the
+same as with the dense columns.
 
 Blocks of the offsets: ``Hdd`` (M, 3, 3), ``gd`` (M, 3), and the coupling ``C`` (M, 3, U) to
 U other parameters (row ``C[m, a]``: landmark m's offset along coordinate a).
@@ -91,37 +94,65 @@ def offset_normal(pb, st, JpR, W, r, Jf, S) -> OffsetBlocks:
 
 def solve_arrow(Huu, C, Hdd, gu, gd):
     """Solve ``[[Huu, C^T], [C, Hdd]] [xu, xd] = [gu, gd]`` with ``Hdd`` block-diagonal:
-    Huu (U, U), C (M, 3, U), Hdd (M, 3, 3), gu (U,), gd (M, 3) -> xu (U,), xd (M, 3). The
-    offsets are eliminated first: a U x U solve and M 3x3 inverses."""
+    Huu (U, U), C (M, b, U), Hdd (M, b, b) (M blocks of size b), gu (U,), gd (M, b) -> xu
+    (U,), xd (M, b). The blocks are eliminated first: a U x U solve and M b x b inverses."""
     Q, QC, R = _reduced(Huu, C, Hdd)
     xu = np.linalg.solve(R, gu - QC.reshape(-1, len(Huu)).T @ gd.reshape(-1))
     return xu, (Q @ gd[..., None])[..., 0] - QC @ xu
 
 
 def arrow_inverse_diagonal(Huu, C, Hdd):
-    """The diagonal of the inverse of the matrix of :func:`solve_arrow`: (U,), (M, 3)."""
+    """The diagonal of the inverse of the matrix of :func:`solve_arrow`: (U,), (M, b)."""
     Q, QC, R = _reduced(Huu, C, Hdd)
     Rinv = np.linalg.inv(R)
     QC = QC.reshape(-1, len(Huu))
-    dd = np.diagonal(Q, axis1=1, axis2=2) + ((QC @ Rinv) * QC).sum(1).reshape(-1, 3)
+    dd = np.diagonal(Q, axis1=1, axis2=2) + ((QC @ Rinv) * QC).sum(1).reshape(len(Q), -1)
     return np.diagonal(Rinv).copy(), dd
 
 
 def _reduced(Huu, C, Hdd):
-    # Q = Hdd^-1 per landmark, Q C (M, 3, U), and the Schur complement of the offsets' block
+    # Q = Hdd^-1 per block, Q C (M, b, U), and the Schur complement of the blocks
     Q = np.linalg.inv(Hdd)
     QC = Q @ C
     U = len(Huu)
     return Q, QC, Huu - QC.reshape(-1, U).T @ C.reshape(-1, U)
 
 
-def _frame_system(Hff, Hfa, Haa):
-    """The frames' and identity's block of the whole system, (N Pf + K) square."""
+def _block_diagonal(B):
+    """(n, b, b) blocks -> the (n b, n b) block-diagonal matrix."""
+    n, b, _ = B.shape
+    D = np.zeros((n, b, n, b))
+    D[np.arange(n), :, np.arange(n), :] = B
+    return D.reshape(n * b, n * b)
+
+
+def _arrow(Hff, Hfa, Haa, off, Hdd):
+    """The whole system over the frames' parameters, the identity and the offsets (Hff
+    (N, Pf, Pf), Hfa (N, Pf, K), Haa (K, K), the offsets' coupling ``off.C`` and blocks Hdd
+    (M, 3, 3)) as an arrow for :func:`solve_arrow` -> (Huu, C, blocks, offsets_first): the
+    blocks are the offsets' (the dense part the frames and the identity), or, where that is
+    smaller, the frames' (the dense part the identity and the offsets)."""
     N, Pf, K = Hfa.shape
-    F = np.zeros((N, Pf, N, Pf))
-    F[np.arange(N), :, np.arange(N), :] = Hff
-    Hfa = Hfa.reshape(N * Pf, K)
-    return np.block([[F.reshape(N * Pf, N * Pf), Hfa], [Hfa.T, Haa]])
+    M = len(Hdd)
+    if N * Pf <= 3 * M:
+        Hfa = Hfa.reshape(N * Pf, K)
+        return np.block([[_block_diagonal(Hff), Hfa], [Hfa.T, Haa]]), off.C, Hdd, True
+    Had = off.C[..., N * Pf:].reshape(3 * M, K)
+    Hfd = off.C[..., :N * Pf].reshape(3 * M, N, Pf).transpose(1, 2, 0)      # (N, Pf, 3M)
+    Hvv = np.block([[Haa, Had.T], [Had, _block_diagonal(Hdd)]])
+    return Hvv, np.concatenate([Hfa, Hfd], -1), Hff, False
+
+
+def _solve_whole(Hff, Hfa, Haa, off, Hdd, gf, ga, gd):
+    """The whole system's solution (:func:`_arrow`; gf (N, Pf), ga (K,), gd (M, 3)) -> xf
+    (N, Pf), xa (K,), xd (M, 3)."""
+    N, Pf, K = Hfa.shape
+    Huu, C, B, offsets_first = _arrow(Hff, Hfa, Haa, off, Hdd)
+    if offsets_first:
+        xu, xd = solve_arrow(Huu, C, B, np.r_[gf.reshape(-1), ga], gd)
+        return xu[:N * Pf].reshape(N, Pf), xu[N * Pf:], xd
+    xv, xf = solve_arrow(Huu, C, B, np.r_[ga, gd.reshape(-1)], gf)
+    return xf, xv[:K], xv[K:].reshape(-1, 3)
 
 
 def damped_step(Hd, Hfa, gf, Haa, ga, off: OffsetBlocks, mu: float):
@@ -138,18 +169,20 @@ def damped_step(Hd, Hfa, gf, Haa, ga, off: OffsetBlocks, mu: float):
     schur = (np.r_[np.diagonal(Haa[0]), np.diagonal(off.Hdd, axis1=1, axis2=2).reshape(-1)]
              - (Hfs * np.linalg.solve(Hd, Hfs)).sum((0, 1)))
     damp = mu * (schur + 1e-9)
-    Huu = _frame_system(Hd, Hfa, Haa[0] + np.diag(damp[:K]))
     Hdd = off.Hdd + damp[K:].reshape(M, 3)[:, :, None] * np.eye(3)
-    xu, xd = solve_arrow(Huu, off.C, Hdd, np.r_[gf.reshape(-1), ga[0]], off.gd)
-    return -xu[:N * Pf].reshape(N, Pf), -np.r_[xu[N * Pf:], xd.reshape(-1)][None]
+    xf, xa, xd = _solve_whole(Hd, Hfa, Haa[0] + np.diag(damp[:K]), off, Hdd, gf, ga[0], off.gd)
+    return -xf, -np.r_[xa, xd.reshape(-1)][None]
 
 
 def posterior_variances(Hff, Hfa, Haa, off: OffsetBlocks):
     """The diagonal of the posterior covariance (the inverse of the whole system): frames'
     parameters (N, Pf), shared coefficients (K + 3M,)."""
-    N, Pf, _ = Hfa.shape
-    du, dd = arrow_inverse_diagonal(_frame_system(Hff, Hfa, Haa[0]), off.C, off.Hdd)
-    return du[:N * Pf].reshape(N, Pf), np.r_[du[N * Pf:], dd.reshape(-1)]
+    N, Pf, K = Hfa.shape
+    Huu, C, B, offsets_first = _arrow(Hff, Hfa, Haa[0], off, off.Hdd)
+    du, dd = arrow_inverse_diagonal(Huu, C, B)
+    if offsets_first:
+        return du[:N * Pf].reshape(N, Pf), np.r_[du[N * Pf:], dd.reshape(-1)]
+    return dd, du
 
 
 def solve_identity_offsets(pb, P, target, W, A) -> np.ndarray:
