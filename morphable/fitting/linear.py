@@ -39,7 +39,7 @@ def ridge_solve(H, g, prior):
     return np.linalg.solve(A, g[..., None])[..., 0]
 
 
-def gram_hessian(P, W, Phi, gram):
+def gram_hessian(P, W, Phi, gram, shift=None):
     """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
     (N, 2, L, k)), using precomputed Gram blocks of the landmarks whose rows never change.
 
@@ -48,16 +48,19 @@ def gram_hessian(P, W, Phi, gram):
     ``sum_g w_g sum_ij (P^T P)_ij G_gij`` with ``G_gij = sum_{l in g} A_l[i]^T A_l[j]``
     computed once per model: far fewer operations than the plain product. ``gram`` is
     :func:`~morphable.fitting.rows.fixed_gram`'s ``(fixed (F,), group (F,), first (g,),
-    moving, G (g, 3, 3, k, k))``; frames that do not qualify (per-point projections, missing
-    or differently weighted fixed landmarks) fall back to the plain product. ``moving``
-    (indices or a slice) covers every other landmark that can have a weight.
+    moving, G (g, 3, 3, k, k), rows)``; frames that do not qualify (per-point projections,
+    missing or differently weighted fixed landmarks) fall back to the plain product.
+    ``moving`` (indices or a slice) covers every other landmark that can have a weight.
+    ``shift``: None, or ``(s (L, 3) mm, d (k,))`` where the rows of ``Phi`` are the Gram's rows
+    plus ``s_l d^T`` (a shared fit's landmark offsets growing with the face,
+    :func:`~morphable.fitting.rows.shared_rows`): a rank-2 correction.
     """
     N, _, L, k = Phi.shape
     W2 = np.concatenate([W, W], 1)
     flat = Phi.reshape(N, 2 * L, k)
     if gram is None or P.ndim != 3:
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
-    fixed, group, first, moving, G = gram
+    fixed, group, first, moving, G, rows = gram
     wf = W[:, fixed]
     wg = wf[:, first]                                               # (N, g)
     ok = np.all(wg > 0) and np.all(wf == wg[:, group])
@@ -66,6 +69,14 @@ def gram_hessian(P, W, Phi, gram):
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
     wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
     H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
+    if shift is not None:
+        # sum_l w_l (A_l + s_l d^T)^T M (A_l + s_l d^T) = Gram + u d^T + d u^T + c d d^T
+        s, d = shift[0][fixed], shift[1]
+        wMs = wf[..., None] * (s @ M)                               # (N, F, 3)
+        u = wMs.transpose(0, 2, 1).reshape(N, -1) @ rows            # (N, k)
+        c = (wMs * s).sum((1, 2))
+        ud = u[:, :, None] * d
+        H = H + ud + ud.transpose(0, 2, 1) + c[:, None, None] * np.outer(d, d)
     Pm = Phi[:, :, moving].reshape(N, -1, k)
     Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
     return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm

@@ -18,7 +18,7 @@ from .noise import weights
 from .offsets import damped_step, offset_normal
 from .pose import rotate
 from .problem import Problem, State, group_index, group_sum
-from .rows import residuals, shared_rows
+from .rows import offsets, residuals, shared_rows
 from .sliding import slide
 
 __all__ = ["lm_stage", "normal_equations"]
@@ -142,7 +142,8 @@ def normal_equations(pb: Problem, st: State):
             if off is not None:
                 off = off._replace(C=np.concatenate(
                     [np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0), off.C[..., N * Pf:]], -1))
-    Haa = gram_hessian(JpR, W, Ja4, None if pb.D else pb.gram)
+    shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
+    Haa = gram_hessian(JpR, W, Ja4, pb.gram, shift)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if pb.shared:
         Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)

@@ -104,8 +104,7 @@ class Problem:
         slides = bool(sliding) and bool(mask[:, sliding].any())
         self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
         # the Gram fast path needs one weight for each group of fixed landmarks of a frame
-        # (those of one definition error): never so with the Huber loss; with offsets, for
-        # the linear stage only (the nonlinear stage's identity rows gain the offsets' growth)
+        # (those of one definition error): never so with the Huber loss
         self.gram = (fixed_gram(bank, K, self.sliding, self.frame_def_std)
                      if self.robust is None and K else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None

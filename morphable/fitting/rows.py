@@ -13,13 +13,14 @@ and its derivatives are used by that structure (:mod:`~morphable.fitting.offsets
 from __future__ import annotations
 
 import weakref
+from typing import NamedTuple
 
 import numpy as np
 
 from .correspondences import across_outline
 from .pose import project, projection_jacobian
 
-__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "fixed_gram", "face_size",
+__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "FixedGram", "fixed_gram", "face_size",
            "from_coefficients", "offsets", "shared_rows", "gather", "combine", "identity_points",
            "points", "residuals"]
 
@@ -54,14 +55,25 @@ MAX_GRAM_GROUPS = 8
 """Most weight groups of :func:`fixed_gram` (each holds 9 K x K blocks)."""
 
 
+class FixedGram(NamedTuple):
+    """Gram blocks of the identity rows of the fixed landmarks (see ``linear.gram_hessian``):
+    ``fixed`` (F,) the landmarks, ``group`` (F,) their weight group, ``first`` (g,) the first
+    of each group, ``moving`` the sliding columns (a slice or indices), ``G`` (g, 3, 3, K, K)
+    the blocks, ``rows`` (3 F, K) the fixed landmarks' rows, coordinate-major."""
+    fixed: np.ndarray
+    group: np.ndarray
+    first: np.ndarray
+    moving: object
+    G: np.ndarray
+    rows: np.ndarray
+
+
 def fixed_gram(bank, K, sliding, std):
-    """(fixed landmarks (F,), their weight group (F,), the first of each group (g,), sliding
-    columns, G (g, 3, 3, K, K)): Gram blocks of the identity rows of the fixed landmarks
-    outside the ``sliding`` columns (a slice, indices or None; ``Problem.sliding``), one per
-    group of landmarks with the same ``std`` (L,) (their definition error: in a frame they
-    have one weight), cached per model, scheme, K and groups (see ``linear.gram_hessian``);
-    landmarks in neither never have a correspondence. None for more than
-    :data:`MAX_GRAM_GROUPS` groups."""
+    """The :class:`FixedGram` of the fixed landmarks outside the ``sliding`` columns (a slice,
+    indices or None; ``Problem.sliding``), one block per group of landmarks with the same
+    ``std`` (L,) (their definition error: in a frame they have one weight), cached per model,
+    scheme, K and groups; landmarks in neither never have a correspondence. None for more
+    than :data:`MAX_GRAM_GROUPS` groups."""
     cache = _GRAMS.setdefault(bank, {})
     sliding = sliding if sliding is not None else slice(0, 0)
     moving = np.arange(len(bank.fixed_row))[sliding]
@@ -75,7 +87,8 @@ def fixed_gram(bank, K, sliding, std):
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
         G = np.stack([np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
                       for g in range(len(values))])
-        cache[key] = (fixed, group, first, sliding, np.ascontiguousarray(G))
+        cache[key] = FixedGram(fixed, group, first, sliding, np.ascontiguousarray(G),
+                               np.ascontiguousarray(Af.transpose(1, 0, 2)).reshape(-1, K))
     return cache[key]
 
 
