@@ -534,7 +534,8 @@ def test_offsets_solved_by_structure_equal_the_dense_fit(sfm, ict, model_name, s
     fast = fit_landmarks(model, lms, (512, 512), **kw)
 
     def dense_rows(pb, st):
-        return np.concatenate([shared_rows(pb, st), dense_offset_rows(pb, face_size(pb, st.alpha))], -1)
+        O = dense_offset_rows(pb, face_size(pb, st.alpha))
+        return np.concatenate([shared_rows(pb, st), O], -1)
 
     def dense_identity(pb, P, target, W, A):
         A = np.concatenate([A, dense_offset_rows(pb, 1.0)], -1)
@@ -542,7 +543,8 @@ def test_offsets_solved_by_structure_equal_the_dense_fit(sfm, ict, model_name, s
 
     monkeypatch.setattr(nonlinear, "shared_rows", dense_rows)
     monkeypatch.setattr(nonlinear, "offset_normal", lambda *args: None)
-    monkeypatch.setattr(nonlinear, "gram_hessian", lambda P, W, Phi, gram, shift: gram_hessian(P, W, Phi, None))
+    monkeypatch.setattr(nonlinear, "gram_hessian",
+                        lambda P, W, Phi, gram, shift: gram_hessian(P, W, Phi, None))
     monkeypatch.setattr(linear_stage, "solve_identity_offsets", dense_identity)
     slow = fit_landmarks(model, lms, (512, 512), **kw)
     assert fast.iterations == slow.iterations

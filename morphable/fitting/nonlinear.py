@@ -4,9 +4,9 @@ Per frame: rotation (axis-angle increments, no gimbal lock), translation, scale 
 depth (perspective) and expressions; per group of frames: the shared coefficients (identity
 and landmark offsets). Analytic Jacobians, an optional Huber loss on the normalised residuals,
 and a Schur complement over the per-frame blocks that keeps a shared identity cheap for many
-frames (with landmark offsets, the offsets are eliminated first instead:
-:mod:`~morphable.fitting.offsets`). A step is tried with growing damping until it lowers the group's cost; blendshape
-weights stay >= 0 (projected steps).
+frames (with landmark offsets, the whole system is solved by its structure:
+:mod:`~morphable.fitting.offsets`). A step is tried with growing damping until it lowers the
+group's cost; blendshape weights stay >= 0 (projected steps).
 """
 from __future__ import annotations
 
@@ -140,8 +140,8 @@ def normal_equations(pb: Problem, st: State):
             gf = np.where(keep, gf, 0.0)
             Hfa = np.where(keep[:, :, None], Hfa, 0.0)
             if off is not None:
-                off = off._replace(C=np.concatenate(
-                    [np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0), off.C[..., N * Pf:]], -1))
+                frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
+                off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
     shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
     Haa = gram_hessian(JpR, W, Ja4, pb.gram, shift)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
