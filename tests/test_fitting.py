@@ -236,12 +236,13 @@ def test_shared_offsets_do_not_shrink_the_face(sfm, kind):
 
 
 def test_shared_rows_are_the_derivatives_of_the_points(sfm, face):
-    # the offsets scale with the face: the identity's derivatives gain the offsets' growth
+    # the offsets scale with the face: the identity's derivatives gain the offsets' growth;
+    # an offset coefficient moves its landmark along its coordinate by face_size * offset_std
     from morphable.fitting.correspondences import landmark_bank
     from morphable.fitting.linear_stage import linear_stage
     from morphable.fitting.options import FitOptions
     from morphable.fitting.problem import Problem, as_frames
-    from morphable.fitting.rows import points, shared_rows
+    from morphable.fitting.rows import face_size, points, shared_rows
 
     y, given, size = as_frames(np.stack([synth(sfm, yaw=a, identity=face[0])[0] for a in (-20, 25)]),
                                None, (512, 512))
@@ -249,14 +250,22 @@ def test_shared_rows_are_the_derivatives_of_the_points(sfm, face):
     assert pb.D > 0                                                 # the offsets are fitted
     st = linear_stage(pb, 1)
     st.alpha = st.alpha + np.random.default_rng(0).normal(0.0, 0.5, st.alpha.shape)
-    rows = shared_rows(pb, st)                                      # (N, 3, 68, K)
+    rows = shared_rows(pb, st)                                      # (N, 3, 68, K identity)
+    assert rows.shape[-1] == sfm.n_identity
     eps = 1e-6
-    for k in (0, 1, sfm.n_identity, pb.K - 1):
+    n = sfm.n_identity
+    for k in (0, 1, n, n + 4, pb.K - 1):
         up, down = st.copy(), st.copy()
         up.alpha[:, k] += eps
         down.alpha[:, k] -= eps
         d = (points(pb, up) - points(pb, down)) / (2 * eps)         # (N, 68, 3)
-        np.testing.assert_allclose(rows[..., k].transpose(0, 2, 1), d, atol=1e-6)
+        if k < n:
+            expected = rows[..., k].transpose(0, 2, 1)
+        else:
+            i, a = divmod(k - n, 3)
+            expected = np.zeros_like(d)
+            expected[:, pb.offset_landmarks[i], a] = face_size(pb, st.alpha)[0] * pb.offset_std[i]
+        np.testing.assert_allclose(expected, d, atol=1e-6)
 
 
 def test_definition_error_of_one_frame_is_extra_variance(sfm, face):
@@ -483,6 +492,66 @@ def test_scheme_fit_with_missing_points_and_mask(sfm, face):
     assert np.isfinite(a.fitted_landmarks[0, ~gone & scheme.defined]).all()
     assert a.landmark_rmse_px[0] < 1.0
     assert abs(a.euler_deg[0, 0] - 25) < 2.0
+
+
+def dense_offset_rows(pb, scale):
+    """(N, 3, L, 3M) the offsets' columns written out: landmark ``offset_landmarks[i]`` moves
+    along coordinate a by ``scale * offset_std[i]`` per unit of coefficient ``3 i + a``
+    (``scale`` (N,) or a number)."""
+    lms = pb.offset_landmarks
+    O = np.zeros((pb.N, 3, pb.y.shape[1], pb.D))
+    for a in range(3):
+        O[:, a, lms, 3 * np.arange(len(lms)) + a] = np.multiply.outer(
+            np.broadcast_to(scale, (pb.N,)), pb.offset_std)
+    return O
+
+
+@pytest.mark.parametrize("model_name, settings", [
+    ("sfm", {}), ("sfm", {"landmark_std_px": "auto"}), ("sfm", {"robust": "huber"}),
+    ("sfm", {"camera": "perspective"}), ("ict", {"landmark_std_px": "auto"})])
+def test_offsets_solved_by_structure_equal_the_dense_fit(sfm, ict, model_name, settings,
+                                                          monkeypatch):
+    # the offsets' columns are never materialised and their block is eliminated first: the
+    # fit must be the one of the plain dense system (the offsets' columns written out, the
+    # shared block solved by its Schur complement), here on 40 surface points and 3 frames
+    # (SFM: the offsets eliminated first; ICT's 53 blendshapes: the frames)
+    from morphable.fitting import linear_stage, nonlinear
+    from morphable.fitting.linear import gram_hessian, solve_identity
+    from morphable.fitting.rows import face_size, shared_rows
+
+    model = {"sfm": sfm, "ict": ict}[model_name]
+    scheme = surface_scheme(model, n=40, seed=3)
+    rng = np.random.default_rng(4)
+    alpha = rng.standard_normal(model.n_identity) * 0.7
+    kind = settings.get("camera", "affine")
+    cams = [Camera.looking_at_face(kind=kind, image_size=(512, 512), yaw=y) for y in (-25, 5, 30)]
+    verts = model.vertices(alpha)
+    lms = np.stack([simulate_landmarks(model, c, vertices=verts, scheme=scheme) for c in cams])
+    lms += rng.normal(0.0, 1.0, lms.shape)
+    kw = dict(scheme=scheme, definition_std_mm=2.0, **settings)
+    if kind == "perspective":
+        kw["focal_px"] = cams[0].focal
+    fast = fit_landmarks(model, lms, (512, 512), **kw)
+
+    def dense_rows(pb, st):
+        O = dense_offset_rows(pb, face_size(pb, st.alpha))
+        return np.concatenate([shared_rows(pb, st), O], -1)
+
+    def dense_identity(pb, P, target, W, A):
+        A = np.concatenate([A, dense_offset_rows(pb, 1.0)], -1)
+        return solve_identity(P, target, W, A, pb.prior, True)
+
+    monkeypatch.setattr(nonlinear, "shared_rows", dense_rows)
+    monkeypatch.setattr(nonlinear, "offset_normal", lambda *args: None)
+    monkeypatch.setattr(nonlinear, "gram_hessian",
+                        lambda P, W, Phi, gram, shift: gram_hessian(P, W, Phi, None))
+    monkeypatch.setattr(linear_stage, "solve_identity_offsets", dense_identity)
+    slow = fit_landmarks(model, lms, (512, 512), **kw)
+    assert fast.iterations == slow.iterations
+    for i in range(3):
+        np.testing.assert_allclose(fast.vertices(i), slow.vertices(i), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fast.landmark_std_px, slow.landmark_std_px, rtol=1e-9)
+    np.testing.assert_allclose(fast.landmark_rmse_px, slow.landmark_rmse_px, rtol=1e-9)
 
 
 def test_landmark_count_must_match_the_scheme(sfm, ict):
@@ -748,16 +817,30 @@ def _size(path):
 
 @pytest.mark.parametrize("model_name", ["sfm", "ict"])
 def test_gram_shortcut_equals_the_plain_hessian(request, monkeypatch, model_name):
+    # one Gram block per group of fixed landmarks of one definition error (the face mesh's
+    # 478 points: two values), the same Hessian as the plain product
     import morphable.fitting.problem as problem
+    from morphable.fitting.schemes import load_scheme
 
     model = request.getfixturevalue(model_name)
     rng = np.random.default_rng(5)
-    lms = np.stack([synth(model, yaw=y, identity=rng.standard_normal(10))[0] for y in (-35, 10, 50)])
+    scheme = load_scheme(model)
+    verts = model.vertices(rng.standard_normal(10))
+    lms = np.stack([simulate_landmarks(model, Camera.looking_at_face(image_size=(512, 512), yaw=y),
+                                       vertices=verts, scheme=scheme) for y in (-35, 10, 50)])
+    lms += rng.normal(0.0, 1.0, lms.shape)
+    gram = problem.fixed_gram
+    used = []
+    monkeypatch.setattr(problem, "fixed_gram", lambda *args: used.append(gram(*args)) or used[-1])
     missing = lms.copy()
     missing[1, 40] = np.nan          # a missing fixed landmark: that batch takes the plain path
     cases = [(x, s) for x in (lms, missing) for s in (True, False)]
     fast = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
-    monkeypatch.setattr(problem, "fixed_gram", lambda bank, K, jaw: None)
+    # alone, a frame's landmarks carry their definition error: one group per value; shared,
+    # the offsets carry it: one group
+    assert all(g is not None for g in used)
+    assert sorted({len(g[2]) for g in used}) == [1, 2]
+    monkeypatch.setattr(problem, "fixed_gram", lambda bank, K, jaw, std: None)
     plain = [fit_landmarks(model, x, (512, 512), shared_identity=s, n_identity=30) for x, s in cases]
     for f, p in zip(fast, plain):
         np.testing.assert_allclose(f.frame_identity, p.frame_identity, atol=1e-8)

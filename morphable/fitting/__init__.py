@@ -11,7 +11,8 @@ Modules, each usable alone:
     correspondences, the points and residuals they give; :mod:`.sliding` — the outline
     correspondences re-picked on the current outline;
   - :mod:`.linear_stage`, :mod:`.nonlinear` — the closed-form start and the joint
-    Levenberg-Marquardt; :mod:`.noise_estimation` — ``landmark_std_px="auto"``;
+    Levenberg-Marquardt; :mod:`.offsets` — the landmark offsets of a shared fit, solved by
+    their block-diagonal structure; :mod:`.noise_estimation` — ``landmark_std_px="auto"``;
   - :mod:`.result` — :class:`FitResult` and its assembly;
 - :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
 - :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["solve_identity", "solve_expression", "ridge_solve", "project_rows", "gram_hessian"]
+__all__ = ["solve_identity", "solve_expression", "ridge_solve", "normal_blocks", "project_rows",
+           "gram_hessian"]
 
 
 def project_rows(P, rows):
@@ -38,37 +39,52 @@ def ridge_solve(H, g, prior):
     return np.linalg.solve(A, g[..., None])[..., 0]
 
 
-def gram_hessian(P, W, Phi, gram):
+def gram_hessian(P, W, Phi, gram, shift=None):
     """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
     (N, 2, L, k)), using precomputed Gram blocks of the landmarks whose rows never change.
 
-    With a projection shared by all points (the affine camera) and one weight for all the
-    fixed landmarks of a frame, their part is ``w sum_ij (P^T P)_ij G_ij`` with
-    ``G_ij = sum_l A_l[i]^T A_l[j]`` computed once per model: about 4x fewer operations than
-    the plain product. ``gram = (fixed (F,), moving (M,), G (3, 3, k, k))``; frames that do
-    not qualify (per-point projections, missing or differently weighted fixed landmarks)
-    fall back to the plain product. ``moving`` (indices or a slice) covers every other
-    landmark that can have a weight.
+    With a projection shared by all points (the affine camera) and one weight ``w_g`` for
+    each group g of fixed landmarks of a frame (those of one definition error), their part is
+    ``sum_g w_g sum_ij (P^T P)_ij G_gij`` with ``G_gij = sum_{l in g} A_l[i]^T A_l[j]``
+    computed once per model: far fewer operations than the plain product. ``gram`` is
+    :func:`~morphable.fitting.rows.fixed_gram`'s ``(fixed (F,), group (F,), first (g,),
+    moving, G (g, 3, 3, k, k), rows)``; frames that do not qualify (per-point projections,
+    missing or differently weighted fixed landmarks) fall back to the plain product.
+    ``moving`` (indices or a slice) covers every other landmark that can have a weight.
+    ``shift``: None, or ``(s (L, 3) mm, d (k,))`` where the rows of ``Phi`` are the Gram's rows
+    plus ``s_l d^T`` (a shared fit's landmark offsets growing with the face,
+    :func:`~morphable.fitting.rows.shared_rows`): a rank-2 correction.
     """
     N, _, L, k = Phi.shape
     W2 = np.concatenate([W, W], 1)
     flat = Phi.reshape(N, 2 * L, k)
     if gram is None or P.ndim != 3:
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
-    fixed, moving, G = gram
+    fixed, group, first, moving, G, rows = gram
     wf = W[:, fixed]
-    ok = (wf[:, :1] > 0) & np.all(wf == wf[:, :1], axis=1, keepdims=True)
-    if not ok.all():
+    wg = wf[:, first]                                               # (N, g)
+    ok = np.all(wg > 0) and np.all(wf == wg[:, group])
+    if not ok:
         return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
-    H = (M.reshape(N, 9) @ G.reshape(9, k * k)).reshape(N, k, k) * wf[:, :1, None]
+    wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
+    H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
+    if shift is not None:
+        # sum_l w_l (A_l + s_l d^T)^T M (A_l + s_l d^T) = Gram + u d^T + d u^T + c d d^T
+        s, d = shift[0][fixed], shift[1]
+        wMs = wf[..., None] * (s @ M)                               # (N, F, 3)
+        u = wMs.transpose(0, 2, 1).reshape(N, -1) @ rows            # (N, k)
+        c = (wMs * s).sum((1, 2))
+        ud = u[:, :, None] * d
+        H = H + ud + ud.transpose(0, 2, 1) + c[:, None, None] * np.outer(d, d)
     Pm = Phi[:, :, moving].reshape(N, -1, k)
     Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
     return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm
 
 
-def _normal(P, W, basis, residual, gram=None):
-    """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k)."""
+def normal_blocks(P, W, basis, residual, gram=None):
+    """Per-frame normal equations of ``P basis x = residual``: (N, k, k), (N, k) (P, W, basis
+    and gram as in :func:`solve_identity`, residual (N, L, 2) px)."""
     N, L = W.shape
     Phi = project_rows(P, basis)                                 # (N, 2, L, k): x rows, y rows
     flat = Phi.reshape(N, 2 * L, -1)
@@ -93,7 +109,7 @@ def solve_identity(P, target, W, A, prior, shared: bool, gram=None):
     -------
     (1, K) if shared else (N, K) coefficients in std units.
     """
-    H, g = _normal(P, W, A, target, gram)
+    H, g = normal_blocks(P, W, A, target, gram)
     if shared:
         H, g = H.sum(0, keepdims=True), g.sum(0, keepdims=True)
     return ridge_solve(H, g, prior)
@@ -108,7 +124,7 @@ def solve_expression(P, target, W, B, prior, nonnegative: bool):
 
     Returns (N, E).
     """
-    H, g = _normal(P, W, B, target)
+    H, g = normal_blocks(P, W, B, target)
     E = H.shape[-1]
     beta = ridge_solve(H, g, prior)
     if not nonnegative or E == 0:

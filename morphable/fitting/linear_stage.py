@@ -15,7 +15,8 @@ from .linear import solve_expression, solve_identity
 from .noise import weights
 from .pose import estimate_affine_pose
 from .problem import Problem, State
-from .rows import coefficients, combine, from_coefficients, gather, points
+from .offsets import solve_identity_offsets
+from .rows import combine, from_coefficients, gather, identity_points, points
 from .sliding import slide
 
 __all__ = ["linear_stage"]
@@ -68,11 +69,12 @@ def _affine_linear_stage(pb: Problem, n_linear: int) -> State:
             expr = combine(Bg, beta) @ P.transpose(0, 2, 1) if E else 0.0
             # the offsets are solved at the mean face's size here (the prior on c, not on
             # delta: a starting point the nonlinear stage corrects)
-            c = solve_identity(P, base - expr, W, Ag, pb.prior, pb.shared, pb.gram)
+            target = base - expr
+            c = (solve_identity_offsets(pb, P, target, W, Ag) if pb.D else
+                 solve_identity(P, target, W, Ag, pb.prior, pb.shared, pb.gram))
             alpha = from_coefficients(pb, c)
         if E:
-            c = np.broadcast_to(coefficients(pb, alpha), (N, K))
-            ident = combine(Ag, c) @ P.transpose(0, 2, 1)
+            ident = identity_points(pb, Ag, alpha) @ P.transpose(0, 2, 1)
             beta = solve_expression(P, base - ident, W, Bg, pb.expression_weight, pb.nonneg)
         st = State(R, t, s, alpha, beta, corr, st.rows)
     return st

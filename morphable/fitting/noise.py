@@ -7,17 +7,17 @@ the model's landmark vertex, by the same 3D offset in every frame of a subject. 
 identity for several frames, treating that offset as independent per-frame noise counts N
 frames as N looks at it, and the identity bends to fit it. So ``uv`` is the projection of
 ``m + A alpha + B beta + definition_std_mm * delta`` with one 3D offset ``delta_l ~ N(0, I)``
-per fixed landmark, shared by the frames and estimated with the identity (in the same Schur
-block): marginalising it gives each landmark's residuals across frames the covariance
-``s^2 I + (k definition_std_mm)^2 1 1^T`` (per coordinate, affine, same pose). The offsets
-grow and shrink with the face (times ``1 + g . alpha``, the face's size relative to the mean
-to first order): landmarks fix a face's shape but not its size, which trades against the
-camera's distance, and offsets of a fixed size in mm would be cheaper on a smaller face —
-with them, shared fits came out 10-15 % smaller than the same frames fitted alone. A single
-frame, or an independent fit per frame, cannot tell the offset from per-frame error; there
-it only adds its variance: ``s^2 += (k definition_std_mm)^2``, exactly what marginalising it
-gives. Sliding outline points get no offset (they are defined by the outline they slide on).
-The default ``definition_std_mm`` is the landmark scheme's
+per fixed landmark, shared by the frames and estimated with the identity
+(:mod:`~morphable.fitting.offsets`): marginalising it gives each landmark's residuals across
+frames the covariance ``s^2 I + (k definition_std_mm)^2 1 1^T`` (per coordinate, affine, same
+pose). The offsets grow and shrink with the face (times ``1 + g . alpha``, the face's size
+relative to the mean to first order): landmarks fix a face's shape but not its size, which
+trades against the camera's distance, and offsets of a fixed size in mm would be cheaper on
+a smaller face — with them, shared fits came out 10-15 % smaller than the same frames fitted
+alone. A single frame, or an independent fit per frame, cannot tell the offset from per-frame
+error; there it only adds its variance: ``s^2 += (k definition_std_mm)^2``, exactly what
+marginalising it gives. Sliding outline points get no offset (they are defined by the
+outline they slide on). The default ``definition_std_mm`` is the landmark scheme's
 (:attr:`~morphable.fitting.schemes.LandmarkScheme.definition_std_mm`); for iBUG-68 it differs
 per landmark group (:data:`DEFINITION_STD_MM`: eyebrows 4.2 mm, nose base 1.6 mm...).
 

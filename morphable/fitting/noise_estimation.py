@@ -11,6 +11,7 @@ import numpy as np
 
 from .noise import model_variance
 from .nonlinear import normal_equations
+from .offsets import posterior_variances
 from .problem import Problem, State, group_index, group_sum
 from .rows import residuals
 
@@ -24,13 +25,18 @@ def effective_parameters(pb: Problem, st: State) -> np.ndarray:
     """(G,) the number of parameters the landmarks actually determine, per group of frames
     that share an identity: the trace of the fit's hat matrix (MacKay's gamma). A free
     parameter (pose) counts 1, a regularised one ``1 - prior * posterior variance``, one
-    held at its bound 0; the posterior covariance comes from the Schur complement."""
-    Hff, _, Hfa, Haa, _, _, act, _ = normal_equations(pb, st)
+    held at its bound 0; the posterior covariance comes from the Schur complement (with
+    landmark offsets, from :func:`~morphable.fitting.offsets.posterior_variances`)."""
+    Hff, _, Hfa, Haa, _, _, act, _, off = normal_equations(pb, st)
     E, K = pb.E, pb.K
-    Hinv = np.linalg.inv(Hff)
-    var = np.diagonal(Hinv, axis1=1, axis2=2).copy()
     gamma = np.zeros(Haa.shape[0])
-    if K:
+    if off is not None:
+        var, shared = posterior_variances(Hff, Hfa, Haa, off)
+        gamma += (1.0 - pb.prior * shared).sum()
+    else:
+        Hinv = np.linalg.inv(Hff)
+        var = np.diagonal(Hinv, axis1=1, axis2=2).copy()
+    if K and off is None:
         X1 = Hinv @ Hfa                                                      # (N, Pf, K)
         Saa = np.linalg.inv(Haa - group_sum(pb, Hfa.transpose(0, 2, 1) @ X1))    # (G, K, K)
         var += np.einsum("npk,nkl,npl->np", X1, Saa[group_index(pb)], X1)

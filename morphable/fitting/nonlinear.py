@@ -4,8 +4,9 @@ Per frame: rotation (axis-angle increments, no gimbal lock), translation, scale 
 depth (perspective) and expressions; per group of frames: the shared coefficients (identity
 and landmark offsets). Analytic Jacobians, an optional Huber loss on the normalised residuals,
 and a Schur complement over the per-frame blocks that keeps a shared identity cheap for many
-frames. A step is tried with growing damping until it lowers the group's cost; blendshape
-weights stay >= 0 (projected steps).
+frames (with landmark offsets, the whole system is solved by its structure:
+:mod:`~morphable.fitting.offsets`). A step is tried with growing damping until it lowers the
+group's cost; blendshape weights stay >= 0 (projected steps).
 """
 from __future__ import annotations
 
@@ -14,9 +15,10 @@ import numpy as np
 from ..camera import cross
 from .linear import gram_hessian, project_rows
 from .noise import weights
+from .offsets import damped_step, offset_normal
 from .pose import rotate
 from .problem import Problem, State, group_index, group_sum
-from .rows import residuals, shared_rows
+from .rows import offsets, residuals, shared_rows
 from .sliding import slide
 
 __all__ = ["lm_stage", "normal_equations"]
@@ -39,22 +41,25 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     for it in range(n_iterations):
         if it % slide_every == 0 and it:
             slide(pb, st)
-        Hff, gf, Hfa, Haa, ga, W, _, cost0 = normal_equations(pb, st)
+        Hff, gf, Hfa, Haa, ga, W, _, cost0, off = normal_equations(pb, st)
         accepted = ~active
         stepped = np.zeros(G, bool)
         gain = np.zeros(G)
         for attempt in range(4):          # retry rejected groups with more damping
-            # independent frames: solve only the active ones still rejected
-            sel = slice(None) if pb.shared else np.flatnonzero(~accepted)
+            # independent frames: solve only the active ones still rejected (all of them: a
+            # slice, not a copy of every frame's rows)
+            sel = slice(None) if pb.shared or not accepted.any() else np.flatnonzero(~accepted)
             gs = slice(None) if pb.shared else sel
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
             Hd = Hs + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
-            sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
-            X1, x2 = sol[..., :K], sol[..., K]
             df = np.zeros((N, Pf))
             da = np.zeros((G, K))
-            if K:
+            if off is not None:
+                df, da = damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
+            elif K:
+                sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
+                X1, x2 = sol[..., :K], sol[..., K]
                 Sa = Haa[gs] - group_sum(pb, Hfs.transpose(0, 2, 1) @ X1)
                 ba = ga[gs] - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
                 Sa = Sa + mu[gs, None, None] * (
@@ -62,7 +67,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
                 da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
                 df[sel] = -(x2 + (X1 @ da[gidx[sel]][..., None])[..., 0])
             else:
-                df[sel] = -x2
+                df[sel] = -np.linalg.solve(Hd, gfs[..., None])[..., 0]
             new = _apply(pb, st, df, da, n_t, n_rho)
             cost1 = np.full(G, np.inf)
             cost1[gs] = _subset_cost(pb, new, W, sel)
@@ -88,8 +93,10 @@ def normal_equations(pb: Problem, st: State):
     """Gauss-Newton blocks at the current state, priors included: per frame Hff (N, Pf, Pf)
     and gf over rotation, translation, scale (affine) and expressions; Hfa (N, Pf, K) to the
     shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, L), the group
-    costs (G,) and the expression bound's active set (N, Pf)."""
-    N, K, E = pb.N, pb.K, pb.E
+    costs (G,), the expression bound's active set (N, Pf), and the landmark offsets' blocks
+    (:class:`~morphable.fitting.offsets.OffsetBlocks`; None without offsets, else Hfa, Haa and
+    ga are the identity's only)."""
+    N, E = pb.N, pb.E
     n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
     Pf = 3 + n_t + n_rho + E
     act = np.zeros((N, Pf), bool)
@@ -107,9 +114,13 @@ def normal_equations(pb: Problem, st: State):
     JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
     if E:
         blocks.append(project_rows(JpR, st.rows[2]))
-    Jf = _across_rows(pb, np.concatenate(blocks, -1)).reshape(N, L2, Pf)
-    Ja4 = _across_rows(pb, project_rows(JpR, shared_rows(pb, st)))    # (N, 2, L, K)
+    Jf4 = _across_rows(pb, np.concatenate(blocks, -1))                  # (N, 2, L, Pf)
+    Jf = Jf4.reshape(N, L2, Pf)
+    S = shared_rows(pb, st)                                         # (N, 3, L, K)
+    Ja4 = _across_rows(pb, project_rows(JpR, S))                    # (N, 2, L, K)
+    K = Ja4.shape[-1]
     Ja = Ja4.reshape(N, L2, K)
+    off = offset_normal(pb, st, JpR, W, r, Jf4, S[0]) if pb.D else None
     w2 = np.concatenate([W, W], 1)[..., None]
     rr = r.transpose(0, 2, 1).reshape(N, L2)
     WJf, WJa = w2 * Jf, w2 * Ja
@@ -128,13 +139,17 @@ def normal_equations(pb: Problem, st: State):
             Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
             gf = np.where(keep, gf, 0.0)
             Hfa = np.where(keep[:, :, None], Hfa, 0.0)
-    Haa = gram_hessian(JpR, W, Ja4, pb.gram)
+            if off is not None:
+                frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
+                off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
+    shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
+    Haa = gram_hessian(JpR, W, Ja4, pb.gram, shift)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if pb.shared:
         Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
-    Haa[:, np.arange(K), np.arange(K)] += pb.prior
-    ga = ga + pb.prior * st.alpha
-    return Hff, gf, Hfa, Haa, ga, W, act, cost0
+    Haa[:, np.arange(K), np.arange(K)] += pb.prior[:K]
+    ga = ga + pb.prior[:K] * st.alpha[:, :K]
+    return Hff, gf, Hfa, Haa, ga, W, act, cost0, off
 
 
 def _across_rows(pb: Problem, J):

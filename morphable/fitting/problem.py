@@ -95,18 +95,18 @@ class Problem:
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
+        # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
+        self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
         self.prior = np.r_[np.full(K, self.prior_weight), np.ones(self.D)]
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
         slides = bool(sliding) and bool(mask[:, sliding].any())
         self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
-        # the Gram fast path needs one weight for all fixed landmarks of a frame: never so
-        # with the Huber loss, offsets or a definition error that differs between landmarks
-        fixed_std = self.frame_def_std[bank.fixed_row >= 0]
-        uniform = fixed_std.size == 0 or np.all(fixed_std == fixed_std[0])
-        self.gram = (fixed_gram(bank, K, self.sliding)
-                     if self.robust is None and K and not self.offsets and uniform else None)
+        # the Gram fast path needs one weight for each group of fixed landmarks of a frame
+        # (those of one definition error): never so with the Huber loss
+        self.gram = (fixed_gram(bank, K, self.sliding, self.frame_def_std)
+                     if self.robust is None and K else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
 

@@ -5,22 +5,25 @@ are evaluated, never the full mesh. Rows are gathered coordinate-major, (N, 3, L
 landmarks and ``k`` coefficients, so that projecting them is one matrix product per frame.
 The shared coefficients are the identity's, then (with a shared identity and a definition
 error) the landmark offsets of :mod:`~morphable.fitting.noise`, which scale with the face's
-size.
+size. The rows hold the identity's only: an offset moves one landmark along one coordinate,
+and its derivatives are used by that structure (:mod:`~morphable.fitting.offsets`).
 ``pb``, ``st``: a fit's :class:`~morphable.fitting.problem.Problem` and
 :class:`~morphable.fitting.problem.State`.
 """
 from __future__ import annotations
 
 import weakref
+from typing import NamedTuple
 
 import numpy as np
 
 from .correspondences import across_outline
 from .pose import project, projection_jacobian
 
-__all__ = ["basis_rows", "size_direction", "fixed_gram", "face_size", "coefficients",
-           "from_coefficients", "offset_rows", "shared_rows", "gather", "combine", "points",
-           "residuals"]
+__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "MIN_GRAM_LANDMARKS", "FixedGram",
+           "fixed_gram", "face_size",
+           "from_coefficients", "offsets", "shared_rows", "gather", "combine", "identity_points",
+           "points", "residuals"]
 
 # per landmark bank (so per model): arrays derived from its rows, built on a model's first fit
 _BASIS_ROWS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -49,21 +52,50 @@ def size_direction(bank, K) -> np.ndarray:
     return np.einsum("li,lik->k", m, A) / (m * m).sum()
 
 
-def fixed_gram(bank, K, sliding):
-    """(fixed landmarks, sliding columns, G (3, 3, K, K)): Gram blocks of the identity rows of
-    the fixed landmarks outside the ``sliding`` columns (a slice, indices or None;
-    ``Problem.sliding``), cached per model, scheme and K (see ``linear.gram_hessian``);
-    landmarks in neither never have a correspondence."""
+MAX_GRAM_GROUPS = 8
+"""Most weight groups of :func:`fixed_gram` (each holds 9 K x K blocks)."""
+
+MIN_GRAM_LANDMARKS = 100
+"""Fewest fixed landmarks for :func:`fixed_gram`: below, the plain product is as fast (SFM,
+per-frame fits: iBUG-68's 51 fixed points ran 0.5-1.4 ms slower with the Gram blocks, the face
+mesh's ~450 10-17 % faster)."""
+
+
+class FixedGram(NamedTuple):
+    """Gram blocks of the identity rows of the fixed landmarks (see ``linear.gram_hessian``):
+    ``fixed`` (F,) the landmarks, ``group`` (F,) their weight group, ``first`` (g,) the first
+    of each group, ``moving`` the sliding columns (a slice or indices), ``G`` (g, 3, 3, K, K)
+    the blocks, ``rows`` (3 F, K) the fixed landmarks' rows, coordinate-major."""
+    fixed: np.ndarray
+    group: np.ndarray
+    first: np.ndarray
+    moving: object
+    G: np.ndarray
+    rows: np.ndarray
+
+
+def fixed_gram(bank, K, sliding, std):
+    """The :class:`FixedGram` of the fixed landmarks outside the ``sliding`` columns (a slice,
+    indices or None; ``Problem.sliding``), one block per group of landmarks with the same
+    ``std`` (L,) (their definition error: in a frame they have one weight), cached per model,
+    scheme, K and groups; landmarks in neither never have a correspondence. None for fewer
+    than :data:`MIN_GRAM_LANDMARKS` fixed landmarks or more than :data:`MAX_GRAM_GROUPS`
+    groups."""
     cache = _GRAMS.setdefault(bank, {})
     sliding = sliding if sliding is not None else slice(0, 0)
     moving = np.arange(len(bank.fixed_row))[sliding]
-    key = (K, moving.tobytes())
+    fixed = np.flatnonzero(bank.fixed_row >= 0)
+    fixed = fixed[~np.isin(fixed, moving)]
+    values, first, group = np.unique(std[fixed], return_index=True, return_inverse=True)
+    if len(fixed) < MIN_GRAM_LANDMARKS or len(values) > MAX_GRAM_GROUPS:
+        return None
+    key = (K, moving.tobytes(), group.tobytes())
     if key not in cache:
-        fixed = np.flatnonzero(bank.fixed_row >= 0)
-        fixed = fixed[~np.isin(fixed, moving)]
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
-        G = np.einsum("lik,ljm->ijkm", Af, Af)
-        cache[key] = (fixed, sliding, np.ascontiguousarray(G))
+        G = np.stack([np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
+                      for g in range(len(values))])
+        cache[key] = FixedGram(fixed, group, first, sliding, np.ascontiguousarray(G),
+                               np.ascontiguousarray(Af.transpose(1, 0, 2)).reshape(-1, K))
     return cache[key]
 
 
@@ -73,49 +105,36 @@ def face_size(pb, alpha) -> np.ndarray:
     return np.maximum(1.0 + alpha[:, :pb.n_identity] @ pb.size_direction, 0.25)
 
 
-def coefficients(pb, alpha) -> np.ndarray:
-    """The shared coefficients (G, K) as they multiply the rows: the landmark offsets grow
-    and shrink with the face (see :mod:`~morphable.fitting.noise`)."""
-    if not pb.D:
-        return alpha
-    n = pb.n_identity
-    return np.concatenate([alpha[:, :n], face_size(pb, alpha)[:, None] * alpha[:, n:]], 1)
-
-
 def from_coefficients(pb, c) -> np.ndarray:
-    """The inverse of :func:`coefficients`."""
+    """The shared coefficients (G, K) from the coefficients as they multiply the points, the
+    offsets at the face's size (``face_size`` times the offsets'; see
+    :mod:`~morphable.fitting.noise`)."""
     if not pb.D:
         return c
     n = pb.n_identity
     return np.concatenate([c[:, :n], c[:, n:] / face_size(pb, c)[:, None]], 1)
 
 
-def offset_rows(pb):
-    """(N, 3, L, D) coordinate-major rows of the landmark offsets: the i-th landmark of
-    ``pb.offset_landmarks`` moves along coordinate a by ``definition_std_mm`` per unit of
-    coefficient ``3 i + a``."""
-    lms = pb.offset_landmarks
-    O = np.zeros((3, pb.y.shape[1], pb.D))
-    for a in range(3):
-        O[a, lms, 3 * np.arange(len(lms)) + a] = pb.definition_std_mm[lms]
-    return np.broadcast_to(O, (pb.N,) + O.shape)
+def offsets(pb, alpha) -> np.ndarray:
+    """(G, L, 3) mm: the landmark offsets at the mean face's size, ``definition_std_mm`` times
+    the offset coefficients (the i-th landmark of ``pb.offset_landmarks`` moves along coordinate
+    a by coefficient ``3 i + a``); 0 for landmarks without one."""
+    out = np.zeros((len(alpha), pb.y.shape[1], 3))
+    out[:, pb.offset_landmarks] = (pb.offset_std[:, None]
+                                   * alpha[:, pb.n_identity:].reshape(len(alpha), -1, 3))
+    return out
 
 
 def shared_rows(pb, st) -> np.ndarray:
-    """(N, 3, L, K) derivatives of the landmark points by the shared coefficients: the identity
-    rows plus the offsets' growth with the face, then the offset rows times the face's size."""
+    """(N, 3, L, K) derivatives of the landmark points by the identity coefficients: the
+    identity rows plus the offsets' growth with the face. The offsets' own derivatives are
+    ``face_size * offset_std`` along their coordinate, never materialised
+    (:mod:`~morphable.fitting.offsets`)."""
     A = st.rows[1]
     if not pb.D:
         return A
-    n = pb.n_identity
-    alpha = np.broadcast_to(st.alpha, (pb.N, pb.K))
-    O = A[..., n:]
-    N, _, L, D = O.shape
-    shift = (O.reshape(N, 3 * L, D) @ alpha[:, n:, None]).reshape(N, 3, L, 1)
-    out = np.empty(A.shape)
-    out[..., :n] = A[..., :n] + shift * pb.size_direction
-    out[..., n:] = O * face_size(pb, alpha)[:, None, None, None]
-    return out
+    shift = np.broadcast_to(offsets(pb, st.alpha), (pb.N,) + A.shape[2:3] + (3,))
+    return A + shift.transpose(0, 2, 1)[..., None] * pb.size_direction
 
 
 def gather(pb, st, sliding_only: bool = False):
@@ -126,15 +145,12 @@ def gather(pb, st, sliding_only: bool = False):
         if pb.sliding is not None:
             st.residuals = None
             c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
-            # the offset columns (after the identity's) never change
-            for src, dst in zip((pb.AT, pb.BT), (st.rows[1][..., :pb.n_identity], st.rows[2])):
+            for src, dst in zip((pb.AT, pb.BT), (st.rows[1], st.rows[2])):
                 c.gather_coordinates(src, pb.sliding, dst)
         return
     # identity and expression rows coordinate-major, (N, 3, L, k): projections are one GEMM
-    A = c.gather_coordinates(pb.AT)
-    if pb.D:
-        A = np.concatenate([A, offset_rows(pb)], -1)
-    st.rows = (c.gather_static(pb.bank.mean), A, c.gather_coordinates(pb.BT))
+    st.rows = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT),
+               c.gather_coordinates(pb.BT))
     st.residuals = None
 
 
@@ -144,13 +160,22 @@ def combine(rows, coeffs):
     return (rows.reshape(N, 3 * L, k) @ coeffs[..., None]).reshape(N, 3, L).transpose(0, 2, 1)
 
 
+def identity_points(pb, A, alpha) -> np.ndarray:
+    """(n, L, 3) mm: what the shared coefficients ``alpha`` (G, K) add to the points of
+    identity rows ``A`` (n, 3, L, K_identity): the identity's part and the offsets."""
+    if not pb.D:
+        return combine(A, np.broadcast_to(alpha, (len(A), pb.K)))
+    n = pb.n_identity
+    X = combine(A, np.broadcast_to(alpha[:, :n], (len(A), n)))
+    return X + face_size(pb, alpha)[:, None, None] * offsets(pb, alpha)
+
+
 def points(pb, st, sel=slice(None)):
     """(n, L, 3) model points of the correspondences of the frames ``sel``, mm."""
     m, A, B = (r[sel] for r in st.rows)
     X = m
     if pb.K:
-        alpha = st.alpha if pb.shared else st.alpha[sel]
-        X = X + combine(A, np.broadcast_to(coefficients(pb, alpha), (len(m), pb.K)))
+        X = X + identity_points(pb, A, st.alpha if pb.shared else st.alpha[sel])
     if pb.E:
         X = X + combine(B, st.beta[sel])
     return X
