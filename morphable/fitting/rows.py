@@ -52,8 +52,9 @@ def size_direction(bank, K) -> np.ndarray:
     return np.einsum("li,lik->k", m, A) / (m * m).sum()
 
 
-MAX_GRAM_GROUPS = 8
-"""Most weight groups of :func:`fixed_gram` (each holds 9 K x K blocks)."""
+MAX_GRAM_GROUPS = 16
+"""Most weight groups of :func:`fixed_gram` (each holds 9 K x K blocks): the calibrated
+face-mesh sidecars have 15 definition errors (0.5 mm steps)."""
 
 MIN_GRAM_LANDMARKS = 100
 """Fewest fixed landmarks for :func:`fixed_gram`: below, the plain product is as fast (SFM,
