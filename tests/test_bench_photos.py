@@ -62,3 +62,10 @@ def test_real_sets_load(data_dir):
     assert w["gt"].shape == (4, 68, 2) and set(w["subset"]) == {"afw", "helen"}
     pairs = london_pairs(data_dir)
     assert len(pairs) == 102 and all(n.is_file() and s.is_file() for _, n, s in pairs)
+
+
+def test_iou():
+    from evaluation.bench_alignment import iou
+
+    np.testing.assert_allclose(iou([[0, 0, 10, 10], [5, 0, 15, 10], [20, 20, 30, 30]], np.array([0, 0, 10, 10])),
+                               [1.0, 50 / 150, 0.0])
