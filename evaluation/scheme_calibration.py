@@ -33,9 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
+from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["VIEWS", "render_subject", "back_project", "calibrate", "main"]
+__all__ = ["VIEWS", "STD_RANGE_MM", "render_subject", "back_project", "calibrate", "collect_hits",
+           "london_photos", "main"]
 
 VIEWS = tuple((y, 0.0) for y in (-60, -45, -30, -15, 0, 15, 30, 45, 60)) + ((0.0, -15.0), (0.0, 15.0))
 """(yaw, pitch) degrees of the calibration renders."""
@@ -89,8 +91,37 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
     (L, 2) px, FitError when it finds no face (default the face mesh). The report holds per
     point the shift of its position (mm, on the mean shape), its new definition error and how
     many renders saw it."""
-    from morphable.fitting.scheme_build import project_to_surface
+    t0 = time.perf_counter()
+    subjects, hits_mean, hits_subj, subj_of, failures = collect_hits(
+        model, scheme, looks, n_subjects, seed, views, detect)
+    count = np.isfinite(hits_mean[..., 0]).sum(0)
+    fixed = ~scheme.sliding & scheme.defined
+    if scheme.chin >= 0:
+        fixed[scheme.chin] = False          # it ends the outline: defined by it, like the oval
+    use = fixed & (count >= 5)
+    use &= use[scheme.mirror]
+    calibrated = _calibrated(model, scheme, use, subjects, hits_mean, hits_subj, subj_of)
+    mean = np.asarray(model.mean, np.float64)
+    shift = np.linalg.norm(calibrated.points(mean) - scheme.points(mean), axis=1)
+    std = calibrated.definition_std_mm
+    report = {"model": model.name, "subjects": n_subjects, "views": [list(v) for v in views],
+              "renders": len(hits_mean), "no_face": failures,
+              "seconds": time.perf_counter() - t0, "calibrated_points": int(use.sum()),
+              "shift_mm": {"median": float(np.median(shift[use])),
+                           "p90": float(np.percentile(shift[use], 90)), "max": float(shift[use].max())},
+              "definition_std_mm": {"median": float(np.median(std[use])),
+                                    "p10": float(np.percentile(std[use], 10)),
+                                    "p90": float(np.percentile(std[use], 90))},
+              "per_point": {"shift_mm": shift.round(3).tolist(), "std_mm": std.round(3).tolist(),
+                            "renders_seen": count.tolist()}}
+    return calibrated, report
 
+
+def collect_hits(model, scheme, looks, n_subjects, seed, views, detect=None):
+    """Render the subjects, detect, cast the detected points back -> (subjects' vertices
+    (S, V, 3) mm, hits on the mean shape and on the subject (R, L, 3) mm, NaN where a point was
+    not found or its model point hidden, the subject of each render (R,), renders without a
+    face). FitError when no render had a face."""
     if detect is None:
         from morphable.detection import detect_landmarks
 
@@ -99,14 +130,9 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
     rng = np.random.default_rng(seed)
     tri_all = np.asarray(model.triangles)
     mean = np.asarray(model.mean, np.float64)
-    fixed = ~scheme.sliding & scheme.defined
-    if scheme.chin >= 0:
-        fixed[scheme.chin] = False          # it ends the outline: defined by it, like the oval
-    hits_mean, hits_subj, subj_of = [], [], []     # per sample: (L, 3) mm, NaN where unused
-    subjects, failures, t0 = [], 0, time.perf_counter()
+    subjects, hits_mean, hits_subj, subj_of, failures = [], [], [], [], 0
     for s in range(n_subjects):
-        alpha = rng.standard_normal(model.n_identity)
-        verts = model.vertices(alpha).astype(np.float64)
+        verts = model.vertices(rng.standard_normal(model.n_identity)).astype(np.float64)
         subjects.append(verts)
         for yaw, pitch in views:
             img, cam, vis = render_subject(verts, tri_all, looks[s % len(looks)], yaw, pitch)
@@ -116,54 +142,42 @@ def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=V
                 failures += 1
                 continue
             tri, bary = back_project(pts, vis)
-            ok = fixed & (tri >= 0) & _visible(scheme.points(verts), cam, vis)
+            ok = (tri >= 0) & _visible(scheme.points(verts), cam, vis)
             corners = tri_all[np.maximum(tri, 0)]
-            on_mean = np.einsum("lkc,lk->lc", mean[corners], bary)
-            on_subj = np.einsum("lkc,lk->lc", verts[corners], bary)
-            hits_mean.append(np.where(ok[:, None], on_mean, np.nan))
-            hits_subj.append(np.where(ok[:, None], on_subj, np.nan))
+            for out, X in ((hits_mean, mean), (hits_subj, verts)):
+                out.append(np.where(ok[:, None], np.einsum("lkc,lk->lc", X[corners], bary), np.nan))
             subj_of.append(s)
     if not hits_mean:
         raise FitError("calibration: the detector found no face in any render")
-    Hm, Hs = np.stack(hits_mean), np.stack(hits_subj)
-    count = np.isfinite(Hm[..., 0]).sum(0)
-    use = fixed & (count >= 5)
-    use &= use[scheme.mirror]
+    return np.stack(subjects), np.stack(hits_mean), np.stack(hits_subj), np.array(subj_of), failures
+
+
+def _calibrated(model, scheme, use, subjects, hits_mean, hits_subj, subj_of):
+    """The scheme with the points ``use`` (L,) bool moved to their hits' mean and given their
+    spread as definition error."""
+    from morphable.fitting.scheme_build import project_to_surface
+
     # the detector and the model are left-right symmetric: a point and its mirror image
     # (x reflected) are two estimates of one definition
-    centre = np.nanmean(Hm, axis=0)
-    centre = 0.5 * (centre + centre[scheme.mirror] * [-1.0, 1.0, 1.0])[use]
-    v_new, b_new, _ = project_to_surface(centre, model)
+    centre = np.full((scheme.n, 3), np.nan)
+    centre[use] = np.nanmean(hits_mean[:, use], axis=0)
+    centre = 0.5 * (centre + centre[scheme.mirror] * [-1.0, 1.0, 1.0])
     vertices, barycentric = scheme.vertices.copy(), scheme.barycentric.copy()
-    vertices[use], barycentric[use] = v_new, b_new
-    std = scheme.definition_std_mm.copy()
+    vertices[use], barycentric[use], _ = project_to_surface(centre[use], model)
     # spread: each hit against the new point on the same subject's surface
-    new_pts = np.stack([np.einsum("lkc,lk->lc", v[vertices], barycentric) for v in subjects])
-    d = Hs[:, use] - new_pts[np.asarray(subj_of)][:, use]
-    # rounded to 0.5 mm (about the estimate's own noise over ~200 renders): a fit groups the
-    # points of one definition error, so a few distinct values keep it fast
+    new_pts = np.einsum("slkc,lk->slc", subjects[:, vertices[use]], barycentric[use])
+    d = hits_subj[:, use] - new_pts[subj_of]
     ms = np.full(scheme.n, np.nan)
     ms[use] = np.nanmean((d ** 2).sum(-1), axis=0) / 3.0
     ms = 0.5 * (ms + ms[scheme.mirror])
+    # rounded to 0.5 mm (about the estimate's own noise over ~200 renders): a fit groups the
+    # points of one definition error, so a few distinct values keep it fast
+    std = scheme.definition_std_mm.copy()
     std[use] = np.clip(np.round(2.0 * np.sqrt(ms[use])) / 2.0, STD_RANGE_MM[0], STD_RANGE_MM[1])
-    old = scheme.points(mean)
-    calibrated = type(scheme)(
+    return type(scheme)(
         name=scheme.name, model_name=scheme.model_name, vertices=vertices, barycentric=barycentric,
         outline_right=scheme.outline_right, outline_left=scheme.outline_left, chin=scheme.chin,
         definition_std_mm=std, mirror=scheme.mirror, ibug68=scheme.ibug68)
-    shift = np.linalg.norm(calibrated.points(mean) - old, axis=1)
-    report = {"model": model.name, "subjects": n_subjects, "views": [list(v) for v in views],
-              "renders": len(hits_mean), "no_face": failures,
-              "seconds": time.perf_counter() - t0,
-              "calibrated_points": int(use.sum()),
-              "shift_mm": {"median": float(np.median(shift[use])), "p90": float(np.percentile(shift[use], 90)),
-                           "max": float(shift[use].max())},
-              "definition_std_mm": {"median": float(np.median(std[use])),
-                                    "p10": float(np.percentile(std[use], 10)),
-                                    "p90": float(np.percentile(std[use], 90))},
-              "per_point": {"shift_mm": shift.round(3).tolist(), "std_mm": std.round(3).tolist(),
-                            "renders_seen": count.tolist()}}
-    return calibrated, report
 
 
 def london_photos(root: Path, n: int) -> list:
@@ -208,7 +222,8 @@ def main(argv=None):
     report["photos"] = [str(p) for p in photos]
     save_scheme(calibrated, a.out, model)
     rep = a.report or a.out.with_suffix(".calibration.json")
-    rep.write_text(json.dumps(report, indent=1))
+    with atomic_path(rep) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
     print(f"{model.name}: {report['calibrated_points']} points calibrated on {report['renders']} renders "
           f"({report['no_face']} without a face); shift median {report['shift_mm']['median']:.2f} mm, "
           f"90 % {report['shift_mm']['p90']:.2f} mm; definition std median "
