@@ -247,9 +247,16 @@ def test_478_point_files_are_read_and_fitted(photo, mesh_points, tmp_path):
     for name in ("a.npy", "b.json", "c.json"):
         np.testing.assert_allclose(read_landmark_file(tmp_path / name, (1280, 1024)), mesh_points)
     res, report = fit_files([photo], [tmp_path / "a.npy"])
-    # until the fitter takes the 478 points, it fits their 68-point subset
-    np.testing.assert_allclose(res.landmarks[0], to_ibug68(mesh_points))
+    # the fit takes the 478 points themselves (the facemesh478 scheme)
+    np.testing.assert_allclose(res.landmarks[0], mesh_points)
     assert report["frames"][0]["landmark_rmse_px"] < 10
+    lm68 = report["frames"][0]["landmarks_68_px"]       # null where SFM has no such point
+    assert len(lm68) == 68 and sum(p is not None and len(p) == 2 for p in lm68) == 66
+    # with a 68-point file beside it, one landmark set for both: the face mesh's mapped to 68
+    pts = photo.with_suffix(".pts")
+    res, _ = fit_files([photo, photo], [pts, tmp_path / "a.npy"])
+    assert res.landmarks.shape == (2, 68, 2)
+    np.testing.assert_allclose(res.landmarks[1], to_ibug68(mesh_points))
 
 
 def test_import_loads_no_detector():
