@@ -47,7 +47,7 @@ from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["METHODS", "YAW_BINS", "data_root", "load_aflw2000", "load_300w", "box_size",
-           "eye_distance", "nme", "iou", "yaw_table", "aflw_angles", "run_method", "main"]
+           "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, np.inf))
@@ -150,16 +150,6 @@ def aflw_angles(euler_deg) -> np.ndarray:
     return np.stack([-e[:, 1], -e[:, 0], -e[:, 2]], -1)
 
 
-def iou(a, b) -> np.ndarray:
-    """Intersection over union of boxes ``a`` (n, 4) and one box ``b`` (4,), (left, top,
-    right, bottom) px -> (n,)."""
-    a = np.asarray(a, dtype=np.float64).reshape(-1, 4)
-    w = np.clip(np.minimum(a[:, 2], b[2]) - np.maximum(a[:, 0], b[0]), 0, None)
-    h = np.clip(np.minimum(a[:, 3], b[3]) - np.maximum(a[:, 1], b[1]), 0, None)
-    area = lambda x: (x[..., 2] - x[..., 0]) * (x[..., 3] - x[..., 1])     # noqa: E731
-    return w * h / (area(a) + area(np.asarray(b)) - w * h)
-
-
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None) -> dict:
     """Run ``method`` on every photo: ``pred`` (N, 68, 2) px (NaN rows: no face),
     ``ms`` (N,) wall ms (NaN for failures), ``euler_deg`` (N, 3) for fits (NaN otherwise),
@@ -168,6 +158,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     detector with its own face detector's box (dlib's shape predictor expects its detector's
     framing); otherwise the largest face found."""
     from morphable.detection import detect_faces, detect_ibug68, detect_landmarks
+    from morphable.detection.boxes import iou
     from morphable.detection.images import read_image
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM

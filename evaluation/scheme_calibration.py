@@ -63,23 +63,26 @@ def render_subject(vertices, triangles, colors, yaw, pitch, image_size=IMAGE):
 def back_project(points_px, vis):
     """Detected points (L, 2) px -> the triangle (L,) (-1: background or outside the image)
     and barycentric weights (L, 3) of the surface each one's pixel shows."""
+    (i, j), inside = _pixels(points_px, vis)
+    tri = np.where(inside, vis.triangle_id[i, j], -1)
+    return tri, vis.barycentric[i, j].astype(np.float64)
+
+
+def _pixels(points_px, vis):
+    """Nearest pixel rows and columns of points (L, 2) px (0 where outside the image) and
+    (L,) bool: inside (NaN points are outside)."""
     H, W = vis.triangle_id.shape
-    ij = np.round(np.asarray(points_px)[:, ::-1]).astype(np.int64)
+    ij = np.round(np.nan_to_num(np.asarray(points_px, np.float64)[:, ::-1], nan=-1.0)).astype(np.int64)
     inside = (ij >= 0).all(1) & (ij[:, 0] < H) & (ij[:, 1] < W)
     ij = np.where(inside[:, None], ij, 0)
-    tri = np.where(inside, vis.triangle_id[ij[:, 0], ij[:, 1]], -1)
-    return tri, vis.barycentric[ij[:, 0], ij[:, 1]].astype(np.float64)
+    return (ij[:, 0], ij[:, 1]), inside
 
 
 def _visible(points, cam, vis, tol_mm: float = 3.0):
     """(L,) bool: model points (L, 3) mm in view and not behind the surface (depth test)."""
-    uv = cam.project(points)
-    H, W = vis.triangle_id.shape
-    ij = np.round(uv[:, ::-1]).astype(np.int64)
-    inside = (ij >= 0).all(1) & (ij[:, 0] < H) & (ij[:, 1] < W)
-    ij = np.where(inside[:, None], ij, 0)
+    (i, j), inside = _pixels(cam.project(points), vis)
     depth = -cam.to_camera(points)[:, 2]
-    return inside & np.isfinite(points).all(1) & (depth <= vis.depth[ij[:, 0], ij[:, 1]] + tol_mm)
+    return inside & np.isfinite(points).all(1) & (depth <= vis.depth[i, j] + tol_mm)
 
 
 def calibrate(model, scheme, looks, n_subjects: int = 20, seed: int = 0, views=VIEWS,

@@ -65,7 +65,7 @@ def test_real_sets_load(data_dir):
 
 
 def test_iou():
-    from evaluation.bench_alignment import iou
+    from morphable.detection.boxes import iou
 
     np.testing.assert_allclose(iou([[0, 0, 10, 10], [5, 0, 15, 10], [20, 20, 30, 30]], np.array([0, 0, 10, 10])),
                                [1.0, 50 / 150, 0.0])

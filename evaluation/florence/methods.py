@@ -67,7 +67,7 @@ def ibug68_points(landmarks) -> np.ndarray:
         return lm
     from morphable.detection.facemesh import to_ibug68
 
-    return np.stack([to_ibug68(x) for x in lm])
+    return to_ibug68(lm)
 
 
 @dataclass

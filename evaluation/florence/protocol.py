@@ -151,9 +151,10 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
         else:
             out.append(read_pts(p.with_suffix(".pts")))
         images.append(image)
-    if len({len(x) for x in out}) > 1:            # .pts files and face-mesh detections: 68 for all
-        out = [ibug68_points(x[None])[0] for x in out]
-    return (np.stack(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
+    from morphable.fitting.files import one_landmark_set
+
+    # .pts files and face-mesh detections: one set (68) for all
+    return (one_landmark_set(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
             detected)
 
 

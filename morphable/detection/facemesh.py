@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import FitError, InputError
 from .boxes import check_box, largest_first
+from .boxes import iou as overlap
 from .images import as_image
 
 __all__ = ["FACE_DETECTORS", "N_POINTS", "FACEMESH_TO_IBUG68", "CROP_MARGIN", "CROP_PX",
@@ -157,13 +158,7 @@ def _suppress(boxes: np.ndarray, iou: float = 0.3) -> np.ndarray:
     """Boxes ``(F, 5)`` found twice (overlapping tiles) -> the higher-scored of each group."""
     keep = []
     for b in boxes[np.argsort(-boxes[:, 4], kind="stable")]:
-        for k in keep:
-            ix = max(0.0, min(b[2], k[2]) - max(b[0], k[0]))
-            iy = max(0.0, min(b[3], k[3]) - max(b[1], k[1]))
-            union = (b[2] - b[0]) * (b[3] - b[1]) + (k[2] - k[0]) * (k[3] - k[1]) - ix * iy
-            if ix * iy > iou * union:
-                break
-        else:
+        if not keep or not (overlap(np.array(keep), b) > iou).any():
             keep.append(b)
     return np.array(keep).reshape(-1, 5)
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..detection.images import image_size
 from ..errors import InputError
 
-__all__ = ["read_landmark_file", "fit_files", "write_fit", "fit_item",
+__all__ = ["read_landmark_file", "one_landmark_set", "fit_files", "write_fit", "fit_item",
            "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
 
 MAX_DETECT_MEGAPIXELS = 40.0
@@ -121,7 +121,7 @@ def _detect(path, size, landmark_detector: str, face_detector: str) -> np.ndarra
     return detect_landmarks(path, landmark_detector=landmark_detector, face_detector=face_detector)
 
 
-def _one_landmark_set(points: list) -> np.ndarray:
+def one_landmark_set(points: list) -> np.ndarray:
     """(N, L, 2): the frames' landmarks as one set. A fit takes one landmark scheme, so when
     68-point and 478-point frames are mixed the face mesh's go through
     :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`."""
@@ -170,7 +170,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
     sizes = [image_size(p) for p in images]
     source = describe(landmark_detector, face_detector)  # a bad choice fails before any work
-    lms = _one_landmark_set([read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector)
+    lms = one_landmark_set([read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector)
                              for p, lm, s in zip(images, landmarks, sizes)])
     if isinstance(model, (str, Path)):
         from ..io.registry import load_model
