@@ -2,9 +2,10 @@
 ``python -m neural.train_inverter --config tiny --generator runs/gar/generator.pt --out runs/inv``.
 
 Normal maps come from :class:`neural.data.SyntheticFaces` (a fixed pool rendered once, since
-rendering costs more than a step; a disjoint held-out pool for the report); each step draws
-fresh latents ``z`` and noise ``eps``, renders ``I = G(n, z, eps)`` and minimises
-:func:`neural.inverter.inverter_loss`.
+rendering costs more than a step; a disjoint held-out pool for the report), or with
+``--data PACK`` from the fits of real photos (:mod:`neural.real_faces`: the pool from the
+train split, the held-out maps from the test split); each step draws fresh latents ``z`` and
+noise ``eps``, renders ``I = G(n, z, eps)`` and minimises :func:`neural.inverter.inverter_loss`.
 
 Outputs in ``--out``: ``inverter.pt`` (:func:`neural.inverter.save_inverter`, with the
 metrics and the generator path in its meta) and ``metrics.json``:
@@ -14,6 +15,10 @@ mean |G(n, V.latent(I)) - G(n, z)| in [0, 1] units, ``image_l1_direction`` the s
 ``PN(z_hat)`` alone, next to ``image_l1_random_z`` (a random latent), all on held-out
 renders; and ``direction_cosine``, the calibration of :meth:`neural.inverter.Inverter.latent`,
 measured on renders of training normal maps after training (:func:`calibrate`).
+
+With ``--data``, ``metrics.json`` also holds ``real`` (:func:`evaluate_real`): how well G
+reconstructs the held-out real photos themselves from their fits' normal maps, with V's
+latent, with the mean latent (``w = w_avg``) and with a latent optimised per photo.
 """
 from __future__ import annotations
 
@@ -32,7 +37,8 @@ from morphable.logs import add_verbosity_arguments, configure, verbosity
 from .gar import pixel_norm
 from .inverter import Inverter, inverter_loss, save_inverter
 
-__all__ = ["normal_pool", "train", "calibrate", "evaluate_inverter", "main"]
+__all__ = ["normal_pool", "pack_pool", "train", "calibrate", "evaluate_inverter", "evaluate_real",
+           "main"]
 
 log = logging.getLogger("neural.train_inverter")
 
@@ -43,6 +49,51 @@ def normal_pool(config, n: int, seed: int) -> torch.Tensor:
 
     faces = SyntheticFaces.from_config(config)
     return faces.sample(n, rng=seed)["normals"]
+
+
+def pack_pool(data, split: str, n: int, seed: int) -> dict:
+    """Up to ``n`` crops of a :mod:`neural.real_faces` pack's ``split`` (a seeded choice
+    without replacement): ``normals`` (n, 3, R, R) and ``image`` (n, 3, R, R) in [-1, 1]."""
+    import numpy as np
+
+    from .real_faces import RealFaces
+
+    faces = RealFaces(data, split=split, flip=False)
+    rng = np.random.default_rng(seed)
+    index = rng.choice(len(faces), size=min(int(n), len(faces)), replace=False)
+    batch = faces.batch(np.sort(index))
+    return {"normals": batch["normals"], "image": batch["image"]}
+
+
+def evaluate_real(V, G, normals, images, steps: int = 100, lr: float = 0.05, seed: int = 1) -> dict:
+    """Reconstruction of real photos ``images`` (B, 3, R, R) in [-1, 1] from their fits'
+    ``normals`` (B, 3, R, R): mean |G(n, z) - I| in [0, 1] units over the crop (G renders
+    the background too), noise zero, for z = V's calibrated latent (``image_l1_v``), the
+    mean latent w = w_avg (``image_l1_mean``) and a latent optimised per photo by Adam from
+    V's (``steps``, ``lr``; ``image_l1_optimised``), and V's error relative to the other two
+    (``v_over_mean``, ``v_over_optimised``)."""
+    g = torch.Generator().manual_seed(seed)
+
+    def l1(image):
+        return (image - images).abs().mean((1, 2, 3)) / 2
+
+    with torch.no_grad():
+        z_v = V.latent(images, generator=g)
+        e_v = float(l1(G(normals, z_v, noise="zero")).mean())
+        w_mean = G.w_avg[None].expand(len(images), -1)
+        e_mean = float(l1(G.synthesis(normals, w_mean, noise="zero")).mean())
+    z = z_v.clone().requires_grad_(True)
+    opt = torch.optim.Adam([z], lr=lr)
+    for _ in range(steps):
+        loss = l1(G(normals, z, noise="zero")).sum()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        e_opt = float(l1(G(normals, z, noise="zero")).mean())
+    return {"image_l1_v": e_v, "image_l1_mean": e_mean, "image_l1_optimised": e_opt,
+            "v_over_mean": e_v / e_mean, "v_over_optimised": e_v / e_opt,
+            "optimiser_steps": steps, "n_photos": len(images)}
 
 
 @torch.no_grad()
@@ -76,12 +127,22 @@ def calibrate(V, G, normals, seed: int = 2) -> float:
 
 
 def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: int = 96,
-          held_out: int = 32, seed: int = 0, max_minutes: float | None = None, progress=True):
-    """Train V for ``steps`` (or ``max_minutes``) -> (V, metrics dict, loss log list)."""
+          held_out: int = 32, seed: int = 0, max_minutes: float | None = None, progress=True,
+          data=None):
+    """Train V for ``steps`` (or ``max_minutes``) -> (V, metrics dict, loss log list).
+
+    ``data``: a :mod:`neural.real_faces` pack whose fits' normal maps replace the
+    synthetic ones (train split for training, test split held out); then the metrics also
+    hold ``real`` (:func:`evaluate_real` on the held-out photos)."""
     cfg = G.config
     torch.manual_seed(seed)
-    train_n = normal_pool(cfg, pool, seed)
-    test_n = normal_pool(cfg, held_out, seed + 10_000)
+    if data is None:
+        train_n = normal_pool(cfg, pool, seed)
+        test_n = normal_pool(cfg, held_out, seed + 10_000)
+    else:
+        train_n = pack_pool(data, "train", pool, seed)["normals"]
+        test = pack_pool(data, "test", held_out, seed + 10_000)
+        test_n = test["normals"]
     V = Inverter(cfg)
     opt = torch.optim.Adam(V.parameters(), lr=lr, betas=(0.9, 0.99))
     rng = torch.Generator().manual_seed(seed)
@@ -107,6 +168,8 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
     calibrate(V, G, train_n[:held_out])
     metrics = evaluate_inverter(V, G, test_n)
     metrics.update(steps=len(history), seconds=round(time.perf_counter() - t0, 1))
+    if data is not None:
+        metrics["real"] = evaluate_real(V, G, test_n, test["image"])
     return V, metrics, history
 
 
@@ -121,6 +184,8 @@ def build_parser():
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--batch-size", type=int, default=8)
     p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--data", help="a neural.real_faces pack: normal maps of real photos' fits "
+                                  "instead of synthetic ones (e.g. gar_data/real64.npz)")
     p.add_argument("--pool", type=int, default=96, help="training normal maps")
     p.add_argument("--held-out", type=int, default=32, help="held-out normal maps for the report")
     p.add_argument("--max-minutes", type=float)
@@ -146,7 +211,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     V, metrics, history = train(G, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                                 pool=args.pool, held_out=args.held_out, seed=args.seed,
-                                max_minutes=args.max_minutes)
+                                max_minutes=args.max_minutes, data=args.data)
     metrics["generator"] = r.weights
     save_inverter(V, out / "inverter.pt", metrics=metrics)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))

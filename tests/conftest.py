@@ -26,3 +26,33 @@ def ict():
     from morphable import load_model
 
     return load_model("ict")
+
+
+def make_tiny_pack(path, n: int = 8, resolution: int = 16, seed: int = 0):
+    """A neural.real_faces pack of ``n`` synthetic SFM renders (two photos per person, every
+    fourth person held out) standing in for real photos in tests; returns the path."""
+    import numpy as np
+
+    from neural.data import SyntheticFaces
+    from neural.real_faces import save_pack
+
+    faces = SyntheticFaces(resolution=resolution)
+    rng = np.random.default_rng(seed)
+    renders = [faces.render(**{k: v for k, v in faces.draw(rng).items() if k != "tone"})
+               for _ in range(n)]
+    person = np.arange(n) // 2
+    arrays = {"image": np.stack([np.round(r["image"] * 255).astype(np.uint8) for r in renders]),
+              "normals": np.stack([r["normals"] for r in renders]),
+              "mask": np.stack([r["mask"] for r in renders]),
+              "landmarks": np.stack([r["landmarks"] for r in renders]).astype(np.float32),
+              "person": person, "held_out": person % 4 == 3,
+              "source": np.array(["synthetic"] * n), "name": np.array([f"{i}.png" for i in range(n)]),
+              "fit_pose": rng.uniform(-30, 30, (n, 3))}
+    return save_pack(path, arrays)
+
+
+@pytest.fixture(scope="session")
+def tiny_pack(tmp_path_factory):
+    """Path of a 16 px pack of 8 synthetic crops (:func:`make_tiny_pack`)."""
+    pytest.importorskip("torch")
+    return make_tiny_pack(tmp_path_factory.mktemp("pack") / "tiny.npz")
