@@ -5,6 +5,10 @@ Methods, each run on every photo of a set:
 - ``dlib``: dlib's HOG face detector and 68-point shape predictor;
 - ``facemesh``: mediapipe's 478-point face mesh, mapped to iBUG-68 by
   :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`;
+- ``ours-dlib+gar``, ``ours-facemesh+classical``, ...: that fit refined by inverting a renderer
+  (:func:`morphable.refinement.refine`, ``--steps`` Adam steps; the GAR's weights from
+  ``--gar-weights`` or the committed ones), scored the same way — whether photometric
+  refinement moves the 68 points towards or away from the ground truth;
 - ``ours-dlib``, ``ours-facemesh``: our fit (SFM, one frame) to either detector's points; its
   projected iBUG-68 landmarks (``FitResult.landmarks_68_px``) are what is scored, so that the
   fit must place the 68 points itself: AFLW2000-3D's ground truth is projected 3D landmarks
@@ -46,10 +50,12 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["METHODS", "YAW_BINS", "data_root", "load_aflw2000", "load_300w", "box_size",
+__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "load_aflw2000", "load_300w", "box_size",
            "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
+REFINED = tuple(f"{m}+{r}" for m in METHODS if m.startswith("ours-") for r in ("classical", "gar"))
+"""The fits refined by inverting a renderer (not run by default: seconds per photo)."""
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, np.inf))
 """|yaw| bins, degrees: [0, 30], (30, 60], (60, ...) (3DDFA's benchmark code puts the few
 photos beyond 90 degrees into the last bin)."""
@@ -150,8 +156,10 @@ def aflw_angles(euler_deg) -> np.ndarray:
     return np.stack([-e[:, 1], -e[:, 0], -e[:, 2]], -1)
 
 
-def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None) -> dict:
-    """Run ``method`` on every photo: ``pred`` (N, 68, 2) px (NaN rows: no face),
+def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
+               steps: int = 100, renderer_options: dict | None = None) -> dict:
+    """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
+    renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo: ``pred`` (N, 68, 2) px (NaN rows: no face),
     ``ms`` (N,) wall ms (NaN for failures), ``euler_deg`` (N, 3) for fits (NaN otherwise),
     ``errors`` {photo: one-line reason}. With annotation ``boxes`` (N, 4) px, the face is the
     detector's face that overlaps the annotated one most (IoU >= 0.3, else a failure), each
@@ -163,7 +171,13 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM
 
+    method, _, renderer = method.partition("+")
     detector = method.removeprefix("ours-")
+    if renderer:
+        from morphable.refinement import refine
+        from morphable.renderer_plugins import get_renderer
+
+        renderer = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
     N = len(paths)
     pred = np.full((N, 68, 2), np.nan)
     ms = np.full(N, np.nan)
@@ -188,6 +202,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 pts = detect_landmarks(img, landmark_detector=detector, box=box)
                 res = fit_landmarks(model, pts, (img.shape[1], img.shape[0]),
                                     model_std_mm=DETECTED_MODEL_STD_MM)
+                if renderer:
+                    res, _ = refine(img, res, renderer, steps=steps)
                 pred[i] = res.landmarks_68_px(convention)[0]
                 euler[i] = res.euler_deg[0]
             else:
@@ -199,12 +215,12 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     return {"pred": pred, "ms": ms, "euler_deg": euler, "errors": errors}
 
 
-def _aflw2000(methods, root, n, model) -> dict:
+def _aflw2000(methods, root, n, model, **refine) -> dict:
     d = load_aflw2000(root, n)
     norm = box_size(d["gt"])
     out = {"photos": len(d["paths"]), "methods": {}}
     for m in methods:
-        r = run_method(m, d["paths"], model, convention="3d")
+        r = run_method(m, d["paths"], model, convention="3d", **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = yaw_table(e, d["yaw_deg"])
         row["median_ms"] = float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None
@@ -218,7 +234,7 @@ def _aflw2000(methods, root, n, model) -> dict:
     return out
 
 
-def _300w(methods, root, n, model) -> dict:
+def _300w(methods, root, n, model, **refine) -> dict:
     d = load_300w(root, n)
     norm = eye_distance(d["gt"])
     out = {"photos": len(d["paths"]), "methods": {},
@@ -227,7 +243,7 @@ def _300w(methods, root, n, model) -> dict:
     # detected face on the annotated one
     boxes = np.concatenate([d["gt"].min(1), d["gt"].max(1)], 1)
     for m in methods:
-        r = run_method(m, d["paths"], model, boxes=boxes)
+        r = run_method(m, d["paths"], model, boxes=boxes, **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = {"failures": int(np.isnan(e).sum()),
                "median_ms": float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None}
@@ -271,7 +287,9 @@ def format_tables(report: dict) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--set", nargs="+", choices=("aflw2000", "300w"), default=["aflw2000"])
-    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
+    p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
+    p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
     p.add_argument("--n", type=int, default=None, help="photos per set (default all)")
     p.add_argument("--model", default="sfm")
     p.add_argument("--data", type=Path, default=None, help="shared data folder (default: $MORPHABLE_DATA "
@@ -284,11 +302,16 @@ def main(argv=None):
 
     root = a.data or data_root()
     model = load_model(a.model) if any(m.startswith("ours-") for m in a.methods) else None
+    if a.gar_weights and not Path(a.gar_weights).is_file():
+        raise InputError(f"{a.gar_weights}: --gar-weights file not found")
     report = {"n": a.n, "model": a.model}
+    refine = {"steps": a.steps, "renderer_options": {"gar": {"weights": a.gar_weights}} if a.gar_weights else None}
+    if any("+" in m for m in a.methods):
+        report.update(steps=a.steps, gar_weights=a.gar_weights)
     if "aflw2000" in a.set:
-        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model)
+        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, **refine)
     if "300w" in a.set:
-        report["300w"] = _300w(a.methods, root, a.n, model)
+        report["300w"] = _300w(a.methods, root, a.n, model, **refine)
     a.report.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(a.report) as tmp:
         tmp.write_text(json.dumps(report, indent=1))
