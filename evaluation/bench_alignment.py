@@ -50,7 +50,7 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "load_aflw2000", "load_300w", "box_size",
+__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "load_aflw2000", "load_300w", "box_size",
            "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
@@ -156,6 +156,19 @@ def aflw_angles(euler_deg) -> np.ndarray:
     return np.stack([-e[:, 1], -e[:, 0], -e[:, 2]], -1)
 
 
+def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = None):
+    """``fit -> refined fit`` for the photo ``img``: a callable ``(img, fit) -> fit`` that
+    inverts ``renderer`` ("" for none: the fit unchanged) for ``steps`` Adam steps, made
+    with ``renderer_options[renderer]`` (e.g. ``{"gar": {"weights": path}}``)."""
+    if not renderer:
+        return lambda img, fit: fit
+    from morphable.refinement import refine
+    from morphable.renderer_plugins import get_renderer
+
+    r = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
+    return lambda img, fit: refine(img, fit, r, steps=steps)[0]
+
+
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
                steps: int = 100, renderer_options: dict | None = None) -> dict:
     """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
@@ -173,11 +186,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
 
     method, _, renderer = method.partition("+")
     detector = method.removeprefix("ours-")
-    if renderer:
-        from morphable.refinement import refine
-        from morphable.renderer_plugins import get_renderer
-
-        renderer = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
+    refined = refiner(renderer, steps, renderer_options)
     N = len(paths)
     pred = np.full((N, 68, 2), np.nan)
     ms = np.full(N, np.nan)
@@ -202,8 +211,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 pts = detect_landmarks(img, landmark_detector=detector, box=box)
                 res = fit_landmarks(model, pts, (img.shape[1], img.shape[0]),
                                     model_std_mm=DETECTED_MODEL_STD_MM)
-                if renderer:
-                    res, _ = refine(img, res, renderer, steps=steps)
+                res = refined(img, res)
                 pred[i] = res.landmarks_68_px(convention)[0]
                 euler[i] = res.euler_deg[0]
             else:

@@ -9,7 +9,9 @@ included). As a scale for it, the *between* distance is the same between differe
 neutral-photo meshes (median over all pairs): an identity that ignores the photo (the mean
 face) has within 0 and between 0 and identifies nobody. *Identification*: the rate at which the
 nearest identity (by that distance) among all 203 other photos is the same person's other photo
-(chance: 1 / 203). Times are wall ms per photo (detection and fit). The facemesh478 sidecars
+(chance: 1 / 203). Times are wall ms per photo (detection and fit). ``ours-facemesh+gar`` and the like
+refine each fit by inverting a renderer first (``--steps``; ``--gar-weights``), to see whether
+the photometric refinement keeps the identity consistent. The facemesh478 sidecars
 were calibrated on renders wearing the colours of the first 20 people
 (:mod:`evaluation.scheme_calibration`): each figure is given over all 102 people and over the
 other 82.
@@ -31,12 +33,13 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .bench_alignment import data_root
+from .bench_alignment import data_root, refiner
 from .bench_fitting import similarity_error
 
-__all__ = ["METHODS", "london_pairs", "identity_meshes", "consistency", "main"]
+__all__ = ["METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
 
 METHODS = ("ours-facemesh", "ours-dlib", "eos-dlib", "eos-facemesh")
+REFINED = tuple(f"{m}+{r}" for m in METHODS if m.startswith("ours-") for r in ("classical", "gar"))
 CALIBRATION_PEOPLE = 20
 """The first people of the set, whose colours the scheme calibration's renders wore."""
 
@@ -55,15 +58,19 @@ def london_pairs(root: Path, n: int | None = None) -> list:
     return pairs[:n] if n else pairs
 
 
-def identity_meshes(method: str, paths, model) -> tuple[np.ndarray, np.ndarray, dict]:
+def identity_meshes(method: str, paths, model, steps: int = 100,
+                    renderer_options: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """(P, V, 3) mm identity meshes of the photos (NaN where the method failed), (P,) wall ms,
-    and {photo: one-line reason} of the failures."""
+    and {photo: one-line reason} of the failures. A method ``ours-<detector>+<renderer>``
+    refines each fit (:func:`evaluation.bench_alignment.refiner`) before taking its identity."""
     from morphable.detection import detect_ibug68, detect_landmarks
     from morphable.detection.images import read_image
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM
 
+    method, _, renderer = method.partition("+")
     fitter, detector = method.split("-")
+    refined = refiner(renderer, steps, renderer_options)
     eos = None
     if fitter == "eos":
         from .peers import EosFitter
@@ -82,7 +89,7 @@ def identity_meshes(method: str, paths, model) -> tuple[np.ndarray, np.ndarray, 
             else:
                 pts = detect_landmarks(img, landmark_detector=detector)
                 res = fit_landmarks(model, pts, size, model_std_mm=DETECTED_MODEL_STD_MM)
-                out[i] = res.neutral_vertices()
+                out[i] = refined(img, res).neutral_vertices()
         except (FitError, InputError) as e:
             errors[str(p)] = str(e)
             continue
@@ -116,7 +123,9 @@ def consistency(neutral, smiling) -> dict:
 @one_line_errors("evaluation.bench_identity")
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
+    p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
+    p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
     p.add_argument("--n", type=int, default=None, help="people (default all 102)")
     p.add_argument("--data", type=Path, default=None,
                    help="shared data folder (default: $MORPHABLE_DATA or ../shared/data)")
@@ -126,14 +135,17 @@ def main(argv=None):
     configure(verbosity(a))
     from morphable import load_model
 
+    if a.gar_weights and not Path(a.gar_weights).is_file():
+        raise InputError(f"{a.gar_weights}: --gar-weights file not found")
+    refine = {"steps": a.steps, "renderer_options": {"gar": {"weights": a.gar_weights}} if a.gar_weights else None}
     model = load_model("sfm")
     pairs = london_pairs(a.data or data_root(), a.n)
-    report = {"people": len(pairs), "model": "sfm", "methods": {}}
+    report = {"people": len(pairs), "model": "sfm", "methods": {}, "steps": a.steps, "gar_weights": a.gar_weights}
     lines = ["| method | within (mm) | between (mm) | identification | identification, people 21-102 "
              "| failures | ms |", "|---|---|---|---|---|---|---|"]
     for m in a.methods:
-        neu, ms_n, err_n = identity_meshes(m, [q for _, q, _ in pairs], model)
-        smi, ms_s, err_s = identity_meshes(m, [q for _, _, q in pairs], model)
+        neu, ms_n, err_n = identity_meshes(m, [q for _, q, _ in pairs], model, **refine)
+        smi, ms_s, err_s = identity_meshes(m, [q for _, _, q in pairs], model, **refine)
         row = consistency(neu, smi)
         row["not_in_calibration"] = consistency(neu[CALIBRATION_PEOPLE:], smi[CALIBRATION_PEOPLE:])
         row["failures"] = len(err_n) + len(err_s)
