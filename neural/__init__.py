@@ -11,6 +11,8 @@ for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
 - :mod:`neural.auxnets` — the frozen auxiliary networks N (normals), P (face mask),
   L (landmarks), R (identity), their loader and ``python -m neural.auxnets.train``;
 - :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
+- :mod:`neural.real_faces` — the packed real-photo set (aligned crops with their fits' normal
+  maps, masks and landmarks) and its batches;
 - :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``;
 - :mod:`neural.checkpoint` — the committed weights' default paths, loading a network or
   the generator from a checkpoint file, one-line errors;
