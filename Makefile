@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 OUT := out
 DATA := ../shared/data
 
-.PHONY: install demo test bench clean system-deps
+.PHONY: install demo test bench clean system-deps gar-gpu
 
 install: $(STAMP)
 
@@ -44,6 +44,14 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# the GAR on the packed real photos, on one GPU (<= 8 min; neural/README.md). Runs with the
+# GPU machine's own Python (torch with CUDA), not the CPU-only .venv; the pack is built here
+# by `make gar-data` into the ignored gar_data/ and travels with the working tree
+GPU_PYTHON ?= python3
+gar-gpu:
+	$(GPU_PYTHON) -m neural.train --config tiny-gpu --data gar_data/real64.npz --out runs/gar-gpu \
+		--device cuda --amp bf16 --channels-last --max-minutes 7
 
 clean:
 	rm -rf $(OUT) .pytest_cache

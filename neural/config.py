@@ -1,5 +1,6 @@
-"""Configurations of the GAR: ``tiny`` (64x64, trains on 2 CPU cores) and ``base`` (256x256,
-documented for a GPU). A config is a plain dataclass; checkpoints store it as a dict.
+"""Configurations of the GAR: ``tiny`` (64x64, trains on 2 CPU cores), ``tiny-gpu`` (the same
+network, sized for a few minutes on one large GPU) and ``base`` (256x256, documented for a
+GPU). A config is a plain dataclass; checkpoints store it as a dict.
 
 Examples
 --------
@@ -34,6 +35,17 @@ class GARConfig:
     -----------------------
     lambda_n = 2, lambda_ldmk = 2, lambda_id = 1, lambda_adv = 1; ``r1_gamma`` weights the R1
     penalty, applied every ``r1_every`` discriminator steps (lazy regularisation).
+    landmark_set : the landmarks L_ldmk compares: ``"model"`` (those the 3DMM defines, SFM:
+    50 of 68), ``"all"`` (68) or ``"auto"``: the model's on synthetic data; on real photos
+    the list the L network's checkpoint states (``meta["landmark_index"]``), else the model's
+    for an L trained on synthetic renders (``meta["training_data"]`` ``SyntheticFaces...``,
+    which has not learnt the other points), else all 68.
+
+    Discriminator augmentation
+    --------------------------
+    augment : DiffAugment policy (:mod:`neural.augment`), e.g. ``"color,translation,cutout"``;
+    ``""`` off; ``None`` (default): on with all three for real photos (``--data``), off on
+    synthetic renders.
 
     Data
     ----
@@ -62,9 +74,12 @@ class GARConfig:
     lambda_ldmk: float = 2.0
     lambda_id: float = 1.0
     lambda_adv: float = 1.0
+    landmark_set: str = "auto"
+    augment: str | None = None
     steps: int = 4000
     sample_every: int = 200
     checkpoint_every: int = 200
+    print_every: int = 100
     seed: int = 0
     # synthetic data
     model: str = "sfm"
@@ -78,6 +93,9 @@ class GARConfig:
         r = self.resolution
         if r < 8 or r & (r - 1):
             raise ValueError(f"config {self.name!r}: resolution must be a power of two >= 8, got {r}")
+        if self.landmark_set not in ("auto", "model", "all"):
+            raise ValueError(f"config {self.name!r}: landmark_set must be auto, model or all, "
+                             f"got {self.landmark_set!r}")
 
     def channels(self, resolution: int) -> int:
         """Feature channels of the block at ``resolution`` pixels."""
@@ -113,6 +131,11 @@ class GARConfig:
 
 CONFIGS = {
     "tiny": GARConfig(),
+    # tiny's network (so its weights load wherever tiny's do) for one H200-class GPU in about
+    # 7 minutes: batch 64, 5000 steps is an estimate of the throughput, not a measurement
+    # (neural/README.md); R1 gamma by StyleGAN2-ADA's rule 0.0002 R^2 / batch
+    "tiny-gpu": GARConfig(name="tiny-gpu", batch_size=64, r1_gamma=0.0128, steps=5000,
+                          sample_every=1000, checkpoint_every=1000, print_every=100),
     # StyleGAN2 256x256 channel schedule: 512 up to 32 px, then 256, 128, 64
     "base": GARConfig(name="base", resolution=256, z_dim=512, w_dim=512, channel_base=16384,
                       channel_max=512, aux_width=32, batch_size=16, g_lr=2e-3, d_lr=2e-3,

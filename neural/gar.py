@@ -281,7 +281,8 @@ class Generator(nn.Module):
         w = self.mapping(z)
         if self.training:
             with torch.no_grad():
-                self.w_avg.lerp_(w.detach().mean(0), 0.005)
+                # (w is bfloat16 under autocast; the running mean stays float32)
+                self.w_avg.lerp_(w.detach().float().mean(0), 0.005)
         if truncation != 1.0:
             w = self.w_avg + truncation * (w - self.w_avg)
         return self.synthesis(normals, w, noise)

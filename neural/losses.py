@@ -96,7 +96,7 @@ def total_loss(terms: dict, lambdas: dict | None = None) -> torch.Tensor:
 
 def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.Tensor,
                      z1: torch.Tensor, z2: torch.Tensor, lambdas: dict | None = None,
-                     landmark_index=None):
+                     landmark_index=None, augment=None):
     """All GAR generator terms for one batch.
 
     Parameters
@@ -108,6 +108,8 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     z1, z2 : (B, z_dim) two latents
     landmark_index : optional (K,) ids of the landmarks L_ldmk compares (e.g. those the 3DMM
         defines, which are the ones the synthetic L network was trained on); default all
+    augment : optional differentiable image transform applied to the fakes before D (the
+        discriminator's augmentation, :func:`neural.augment.diff_augment`); default none
 
     Returns
     -------
@@ -133,6 +135,7 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
         emb = aux["R"](torch.cat([img_a1, img_b1]))
         terms["id"] = identity_loss(*emb.split(B))
     if lam["adv"]:
-        terms["adv"] = generator_adversarial_loss(D(img_a1))
+        terms["adv"] = generator_adversarial_loss(
+            D(img_a1 if augment is None else augment(img_a1)).float())
     total = total_loss(terms, lam)
     return total, {k: float(v.detach()) for k, v in terms.items()}, img_a1.detach()

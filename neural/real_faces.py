@@ -173,13 +173,20 @@ def load_pack(path) -> dict:
 
 def flip_faces(image, normals, mask, landmarks):
     """Mirror crops left-right: (N, R, R, 3) images, (N, R, R, 3) normals (x negated),
-    (N, R, R) masks, (N, 68, 2) px landmarks (x -> R - 1 - x, mirrored labels)."""
+    (N, R, R) masks, (N, 68, 2) px landmarks (x -> R - 1 - x, mirrored labels); numpy
+    arrays or torch tensors (new ones, the inputs are not changed)."""
     R = image.shape[2]
-    n = normals[:, :, ::-1].copy()
+    if isinstance(image, np.ndarray):
+        def flip(a):
+            return a[:, :, ::-1].copy()
+    else:
+        def flip(a):
+            return a.flip(2)
+    n = flip(normals)
     n[..., 0] *= -1
-    lm = landmarks[:, MIRROR].copy()
+    lm = landmarks[:, MIRROR]
     lm[..., 0] = R - 1 - lm[..., 0]
-    return image[:, :, ::-1].copy(), n, mask[:, :, ::-1].copy(), lm
+    return flip(image), n, flip(mask), lm
 
 
 class RealFaces:
@@ -190,13 +197,15 @@ class RealFaces:
     path : pack file (:func:`save_pack`)
     split : ``"train"`` (not held out), ``"test"`` (held out) or ``"all"``
     flip : mirror each drawn crop with probability 1/2 (normals' x negated)
+    device : torch device of the batches; the split's crops are held there as tensors
+        (images as uint8) once, so that drawing a batch moves no data to the device
 
     The second view of a pair (``pair=True``) is another photo of the same person in the
     split when there is one (e.g. the London set's smiling photo), else the mirror image of
     the same photo: the same identity under another pose.
     """
 
-    def __init__(self, path, split: str = "train", flip: bool = True):
+    def __init__(self, path, split: str = "train", flip: bool = True, device="cpu"):
         if split not in SPLITS:
             raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
         arrays = load_pack(path)
@@ -215,6 +224,24 @@ class RealFaces:
         self._group_of = np.empty(len(person), np.int64)
         for g, members in enumerate(self._groups):
             self._group_of[members] = g
+        self.device = device
+        self._tensors = None
+
+    @property
+    def tensors(self) -> dict:
+        """The split's ``image`` (uint8), ``normals``, ``mask``, ``landmarks``, ``pose`` (the
+        fit's, zero when the pack has none) and ``person`` as tensors on ``device``."""
+        if self._tensors is None:
+            import torch
+
+            a = self.arrays
+            pose = a["fit_pose"] if "fit_pose" in a else np.zeros((len(self), 3))
+            cols = {"image": a["image"], "normals": a["normals"], "mask": a["mask"],
+                    "landmarks": a["landmarks"].astype(np.float32),
+                    "pose": np.asarray(pose, np.float32), "person": a["person"].astype(np.int64)}
+            self._tensors = {k: torch.as_tensor(np.ascontiguousarray(v), device=self.device)
+                             for k, v in cols.items()}
+        return self._tensors
 
     def __len__(self) -> int:
         return len(self.arrays["image"])
@@ -233,28 +260,29 @@ class RealFaces:
         return out, mirrored
 
     def batch(self, index, flipped=None) -> dict:
-        """The crops ``index`` (B,) as torch tensors (``image`` in [-1, 1]), mirrored where
-        ``flipped`` (B,) bool is True."""
+        """The crops ``index`` (B,) as torch tensors on ``device`` (``image`` in [-1, 1]),
+        mirrored where ``flipped`` (B,) bool is True."""
         import torch
 
-        a = self.arrays
-        index = np.asarray(index)
-        img, n, m, lm = (a[k][index] for k in ("image", "normals", "mask", "landmarks"))
-        if flipped is not None and np.any(flipped):
-            f = np.asarray(flipped, bool)
-            img[f], n[f], m[f], lm[f] = flip_faces(img[f], n[f], m[f], lm[f])
-        pose = a["fit_pose"][index].astype(np.float32) if "fit_pose" in a else \
-            np.zeros((len(index), 3), np.float32)
+        t = self.tensors
+        index = torch.as_tensor(np.asarray(index), device=self.device)
+        img, n, m, lm, pose = (t[k][index] for k in ("image", "normals", "mask", "landmarks",
+                                                     "pose"))
         if flipped is not None:
+            f = np.asarray(flipped, bool)
+            if f.any():
+                ft = torch.as_tensor(f, device=self.device)
+                img[ft], n[ft], m[ft], lm[ft] = flip_faces(img[ft], n[ft], m[ft], lm[ft])
             # a mirror image turns yaw and roll the other way
-            pose = pose * np.where(np.asarray(flipped, bool)[:, None], [-1, 1, -1], 1)
-        t = torch.as_tensor
-        return {"image": t(img.transpose(0, 3, 1, 2).astype(np.float32) / 127.5 - 1),
-                "normals": t(np.ascontiguousarray(n.transpose(0, 3, 1, 2))),
-                "mask": t(m[:, None].astype(np.float32)),
-                "landmarks": t(lm.astype(np.float32)),
-                "pose": t(pose.astype(np.float32)),
-                "identity_id": t(a["person"][index].astype(np.int64))}
+            sign = torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1), dtype=pose.dtype,
+                                   device=self.device)
+            pose = pose * sign
+        return {"image": img.permute(0, 3, 1, 2).float() / 127.5 - 1,
+                "normals": n.permute(0, 3, 1, 2).contiguous(),
+                "mask": m[:, None].float(),
+                "landmarks": lm.float(),
+                "pose": pose.float(),
+                "identity_id": t["person"][index]}
 
     def sample(self, batch_size: int, rng=None, pair: bool = False) -> dict:
         """``batch_size`` random crops (with replacement) as the dict of

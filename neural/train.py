@@ -1,9 +1,13 @@
 """Train the GAR: ``python -m neural.train --config tiny --out runs/tiny``.
 
-Each step: sample synthetic faces (pairs of views of the same identities), one generator
-step on ``L_GAR`` (:func:`neural.losses.generator_losses`), one discriminator step
-(logistic loss, lazy R1 every ``r1_every`` steps), and an exponential moving average of
-the generator (``G_ema``, used for samples and the saved weights).
+Each step: sample pairs of normal maps of the same identities (synthetic renders, or with
+``--data PACK`` the fits of real photos, :class:`neural.real_faces.RealFaces`), one
+generator step on ``L_GAR`` (:func:`neural.losses.generator_losses`), one discriminator
+step (logistic loss, lazy R1 every ``r1_every`` steps; with ``--data`` its real images are
+other photos of the pack, and both its inputs pass through the differentiable augmentation
+of :mod:`neural.augment`), and an exponential moving average of the generator (``G_ema``,
+used for samples and the saved weights). ``--device cuda --amp bf16 --channels-last`` is
+the GPU recipe (``scripts/train_gar_gpu.sh``).
 
 Reproducible and resumable: step ``k`` draws its data, latents and noise from seeds
 ``(seed, k)``, and ``out/checkpoint.pt`` (written atomically every ``checkpoint_every``
@@ -23,6 +27,7 @@ import json
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,13 +36,17 @@ import torch
 from morphable.errors import InputError, MorphableError
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
+from .augment import DEFAULT_POLICY, diff_augment, parse_policy
 from .auxnets import NAMES, load_aux
 from .checkpoint import default_aux_path
 from .config import GARConfig, get_config
 from .gar import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty
 
-__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid"]
+__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index", "AMP_DTYPES"]
+
+AMP_DTYPES = {"bf16": "bfloat16", "none": None}
+"""``--amp`` choices -> the torch.autocast dtype (None: full precision)."""
 
 log = logging.getLogger("neural.train")
 
@@ -83,6 +92,24 @@ class _Batches(torch.utils.data.IterableDataset):
             step += W
 
 
+def landmark_index(config: GARConfig, L, real: bool) -> np.ndarray:
+    """(K,) ids of the landmarks L_ldmk compares (``config.landmark_set``, its docstring in
+    :class:`~neural.config.GARConfig`): ``real`` says whether the normal maps come from real
+    photos; ``L`` is the landmark network (its ``meta`` may state its landmarks)."""
+    choice = config.landmark_set
+    if choice == "auto":
+        meta = getattr(L, "meta", None) or {}
+        if real and "landmark_index" in meta:
+            return np.asarray(meta["landmark_index"], dtype=np.int64)
+        synthetic_l = str(meta.get("training_data", "")).startswith("SyntheticFaces")
+        choice = "model" if not real or synthetic_l else "all"
+    if choice == "all":
+        return np.arange(68)
+    from morphable import load_model
+
+    return np.flatnonzero(load_model(config.model).landmark_ids >= 0)
+
+
 class Trainer:
     """The GAR training state: networks, optimisers, data, step.
 
@@ -94,18 +121,47 @@ class Trainer:
         (``neural/weights/aux_*.pt``, or ``aux_dir/aux_*.pt``)
     images : optional folder of face photos for the discriminator's real images
         (otherwise the synthetic renders are the real images)
+    data : optional pack of real photos (:mod:`neural.real_faces`): G's normal maps are its
+        train split's fits, D's real images other photos of it (held on ``device``)
+    amp : ``"bf16"`` for bfloat16 autocast of every forward pass, None for float32
+    channels_last : networks and images in channels-last memory format
     """
 
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
-                 aligned=False, workers: int = 0, device="cpu"):
+                 aligned=False, workers: int = 0, device="cpu", data=None, amp=None,
+                 channels_last: bool = False):
         from .data import AlignedImageFolder, SyntheticFaces
+        from .real_faces import RealFaces
 
-        self.config, self.out, self.device = config, Path(out), torch.device(device)
+        if data is not None and images is not None:
+            raise InputError("--data and --images both give the discriminator real photos; "
+                             "pass one")
+        if data is not None and workers:
+            raise InputError("--data batches are drawn on the device; drop --workers")
+        if amp is not None and amp not in AMP_DTYPES:
+            raise InputError(f"--amp must be one of {', '.join(AMP_DTYPES)}, got {amp!r}")
+        try:
+            self.device = torch.device(device)
+            torch.empty(0, device=self.device)
+        except (RuntimeError, AssertionError) as e:
+            raise InputError(f"--device {device}: {str(e).splitlines()[0]}") from None
+        real = None if data is None else RealFaces(data, "train", device=self.device)
+        policy = config.augment
+        if policy is None:
+            policy = DEFAULT_POLICY if real is not None else ""
+        try:
+            parse_policy(policy)
+        except ValueError as e:
+            raise InputError(f"--set augment: {e}") from None
+        config = replace(config, augment=policy)
+        self.config, self.out = config, Path(out)
+        self.amp_dtype = getattr(torch, AMP_DTYPES[amp]) if AMP_DTYPES.get(amp) else None
+        self.channels_last = bool(channels_last)
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "samples").mkdir(exist_ok=True)
         torch.manual_seed(config.seed)
-        self.G = Generator(config).to(self.device)
-        self.D = Discriminator(config).to(self.device)
+        self.G = self.layout(Generator(config))
+        self.D = self.layout(Discriminator(config))
         self.G_ema = copy.deepcopy(self.G).eval().requires_grad_(False)
         self.opt_g = torch.optim.Adam(self.G.parameters(), lr=config.g_lr, betas=config.betas)
         # lazy R1: scale the D optimiser's momentum as StyleGAN2 does
@@ -115,16 +171,26 @@ class Trainer:
         if aux is None:
             aux = {n: load_aux(n, None if aux_dir is None else Path(aux_dir) / f"aux_{n}.pt",
                                resolution=config.resolution) for n in NAMES}
-        self.aux = {n: net.to(self.device) for n, net in aux.items()}
-        self.data = SyntheticFaces.from_config(config)
+        self.aux = {n: self.layout(net) for n, net in aux.items()}
+        # the source of G's normal maps (and, without --data or --images, of D's reals)
+        self.real = real
+        self.data = SyntheticFaces.from_config(config) if real is None else real
         self.images = None
         if images is not None:
             self.images = AlignedImageFolder(images, config.resolution, aligned=aligned,
                                              model=config.model)
         self.workers = workers
         self.step = 0
-        self.landmark_index = torch.as_tensor(np.flatnonzero(self.data.model.landmark_ids >= 0),
-                                              device=self.device)
+        self.landmark_index = torch.as_tensor(
+            landmark_index(config, self.aux["L"], real=real is not None), device=self.device)
+
+    def layout(self, x):
+        """A module or tensor on the device, channels-last with ``channels_last`` (4-D
+        tensors only); otherwise as it is."""
+        x = x.to(self.device)
+        if self.channels_last and (isinstance(x, torch.nn.Module) or x.dim() == 4):
+            x = x.to(memory_format=torch.channels_last)
+        return x
 
     # --- checkpoints --------------------------------------------------------------------
     @property
@@ -169,38 +235,71 @@ class Trainer:
         return self.step
 
     # --- one step -----------------------------------------------------------------------
-    def _real_images(self, batch, gen):
+    def real_images(self, batch, gen=None) -> torch.Tensor:
+        """(B, 3, R, R) real images for the discriminator in this step (``gen``: the step's
+        CPU generator, used by the --images draws)."""
+        B = batch["image"].shape[0]
+        if self.real is not None:
+            # independent draws (with flips) of the pack's photos of other people than
+            # those whose normal maps G got in this step, so D never sees G's own photo
+            rng = np.random.default_rng([self.config.seed, self.step, 1])
+            person = self.real.arrays["person"]
+            allowed = np.flatnonzero(~np.isin(person, batch["identity_id"].cpu().numpy()))
+            if not len(allowed):
+                raise InputError(f"{self.real.path}: every train photo's person is in one "
+                                 f"batch of {B}; use a smaller --batch-size")
+            index = allowed[rng.integers(len(allowed), size=B)]
+            return self.real.batch(index, rng.random(B) < 0.5)["image"]
         if self.images is None:
             return batch["image"]
-        idx = torch.randint(len(self.images), (batch["image"].shape[0],), generator=gen)
+        idx = torch.randint(len(self.images), (B,), generator=gen)
         return torch.stack([self.images[int(i)] for i in idx]).to(self.device)
+
+    def _autocast(self):
+        return torch.autocast(self.device.type, dtype=self.amp_dtype or torch.bfloat16,
+                              enabled=self.amp_dtype is not None)
+
+    def _augment(self):
+        """The step's DiffAugment (None when off), its draws seeded by (seed, step)."""
+        if not self.config.augment:
+            return None
+        seed = int(np.random.SeedSequence([self.config.seed, self.step, 2]).generate_state(1)[0])
+        gen = torch.Generator().manual_seed(seed)
+        return lambda images: diff_augment(images, self.config.augment, gen)
 
     def train_step(self, batch) -> dict:
         cfg, dev = self.config, self.device
-        batch = {k: v.to(dev) for k, v in batch.items()}
+        batch = {k: self.layout(v) for k, v in batch.items()}
         gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + self.step)
         torch.manual_seed(cfg.seed * 1_000_003 + self.step)   # the per-layer noise
         B = batch["normals"].shape[0]
         z1 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
         z2 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
+        augment = self._augment()
 
         # generator
         self.G.train()
         self.D.requires_grad_(False)
-        total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
-                                              batch["normals_b"], z1, z2, cfg.lambdas,
-                                              landmark_index=self.landmark_index)
+        with self._autocast():
+            total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
+                                                  batch["normals_b"], z1, z2, cfg.lambdas,
+                                                  landmark_index=self.landmark_index,
+                                                  augment=augment)
         self.opt_g.zero_grad(set_to_none=True)
         total.backward()
         self.opt_g.step()
         self.D.requires_grad_(True)
 
         # discriminator, with lazy R1 on real images
-        real = self._real_images(batch, gen)
+        # with augmentation, R1's gradient is taken through it, w.r.t. the photos (as
+        # DiffAugment's and StyleGAN2-ADA's code do)
+        real = self.layout(self.real_images(batch, gen))
         r1_step = cfg.r1_gamma > 0 and self.step % cfg.r1_every == 0
         real.requires_grad_(r1_step)
-        real_logits = self.D(real)
-        d_loss = discriminator_loss(real_logits, self.D(fake))
+        with self._autocast():
+            real_logits = self.D(real if augment is None else augment(real)).float()
+            fake_logits = self.D(fake if augment is None else augment(fake)).float()
+        d_loss = discriminator_loss(real_logits, fake_logits)
         loss = d_loss
         if r1_step:
             r1 = r1_penalty(real, real_logits)
@@ -241,14 +340,27 @@ class Trainer:
         return Path(path)
 
     # --- the loop -----------------------------------------------------------------------
-    def fit(self, steps=None, progress: bool = True, max_minutes=None) -> int:
+    def report(self, terms: dict, steps: int, images: int, seconds: float, out=None) -> str:
+        """One line: step, the loss terms, throughput (images/s: G's normal maps, i.e. batch
+        size x steps, per second of training steps) over ``images`` in ``seconds``; printed
+        to ``out`` (default stdout)."""
+        losses = " ".join(f"{k} {terms[k]:.4f}" for k in ("n", "ldmk", "id", "adv", "d", "r1",
+                                                            "g_total") if k in terms)
+        line = (f"step {self.step}/{steps} {losses} | {images / max(seconds, 1e-9):.1f} img/s "
+                f"({images} images in {seconds:.1f} s)")
+        print(line, file=out or sys.stdout, flush=True)
+        return line
+
+    def fit(self, steps=None, progress: bool = True, max_minutes=None, max_steps=None) -> int:
         """Train up to ``steps`` (default config.steps) total steps, or until ``max_minutes``
-        have passed (then a sample grid and a checkpoint are written; rerun to continue);
-        returns the final step."""
+        have passed or ``max_steps`` steps of this call are done (then a sample grid and a
+        checkpoint are written; rerun to continue); returns the final step. Prints the
+        losses and throughput every ``config.print_every`` steps and at the end."""
         from tqdm import tqdm
 
         cfg = self.config
         steps = cfg.steps if steps is None else steps
+        first = self.step
         batches = torch.utils.data.DataLoader(
             _Batches(self.data, cfg.batch_size, cfg.seed, self.step), batch_size=None,
             num_workers=self.workers, persistent_workers=False)
@@ -256,22 +368,31 @@ class Trainer:
                    dynamic_ncols=True)
         logf = open(self.out / "log.jsonl", "a")
         start = time.monotonic()
+        train_seconds, window, terms = 0.0, [0.0, 0], None
         try:
             it = iter(batches)
             while self.step < steps:
-                if max_minutes is not None and time.monotonic() - start > 60 * max_minutes:
-                    log.info("time budget of %g min reached at step %d", max_minutes, self.step)
+                over_time = max_minutes is not None and time.monotonic() - start > 60 * max_minutes
+                if over_time or (max_steps is not None and self.step - first >= max_steps):
+                    log.info("%s reached at step %d", f"time budget of {max_minutes:g} min"
+                             if over_time else f"--max-steps {max_steps}", self.step)
                     self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
                     self.save()
                     break
                 t0 = time.perf_counter()
                 terms = self.train_step(next(it))
-                terms["step"], terms["seconds"] = self.step, round(time.perf_counter() - t0, 4)
+                dt = time.perf_counter() - t0
+                train_seconds += dt
+                window = [window[0] + dt, window[1] + 1]
+                terms["step"], terms["seconds"] = self.step, round(dt, 4)
                 logf.write(json.dumps(terms) + "\n")
                 logf.flush()
                 bar.update(1)
                 bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()
                                  if k in ("n", "ldmk", "id", "adv", "d")})
+                if cfg.print_every and self.step % cfg.print_every == 0:
+                    self.report(terms, steps, window[1] * cfg.batch_size, window[0])
+                    window = [0.0, 0]
                 if self.step % cfg.sample_every == 0 or self.step == steps:
                     self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
                 if self.step % cfg.checkpoint_every == 0 or self.step == steps:
@@ -282,6 +403,9 @@ class Trainer:
         finally:
             bar.close()
             logf.close()
+        if terms is not None:
+            print("end: ", end="", flush=True)
+            self.report(terms, steps, (self.step - first) * cfg.batch_size, train_seconds)
         return self.step
 
 
@@ -300,7 +424,8 @@ def _parse_set(items) -> dict:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m neural.train", description=__doc__.splitlines()[0])
-    p.add_argument("--config", default="tiny", help="tiny (64 px, CPU) or base (256 px, GPU)")
+    p.add_argument("--config", default="tiny",
+                   help="tiny (64 px, CPU), tiny-gpu (tiny's network, one GPU) or base (256 px, GPU)")
     p.add_argument("--out", required=True, help="output folder (resumes from its checkpoint)")
     p.add_argument("--steps", type=int, help="total steps (default: the config's)")
     p.add_argument("--batch-size", type=int)
@@ -311,6 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      f"(default {default_aux_path('N').parent})")
     p.add_argument("--untrained-aux", action="store_true",
                    help="use randomly initialised aux networks (smoke tests only)")
+    p.add_argument("--data", metavar="PACK",
+                   help="real-photo pack (neural.real_faces, e.g. gar_data/real64.npz): G's "
+                        "normal maps from its fits, D's real images its photos")
     p.add_argument("--images", help="folder of face photos for the discriminator (FFHQ-style)")
     p.add_argument("--aligned", action="store_true", help="--images are already aligned")
     p.add_argument("--no-resume", action="store_true", help="fail if --out has a checkpoint")
@@ -318,6 +446,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
+    p.add_argument("--max-steps", type=int, metavar="N",
+                   help="stop (with a checkpoint) after N steps of this run")
+    p.add_argument("--amp", default="none", choices=sorted(AMP_DTYPES),
+                   help="autocast dtype of the forward passes (bf16 on GPUs that have it)")
+    p.add_argument("--channels-last", action="store_true",
+                   help="networks and images in channels-last memory format")
     add_verbosity_arguments(p)
     return p
 
@@ -342,12 +476,14 @@ def main(argv=None) -> int:
             torch.manual_seed(cfg.seed + 1)
             aux = {n: load_aux(n, pretrained=False, width=cfg.aux_width) for n in NAMES}
         trainer = Trainer(cfg, args.out, aux=aux, aux_dir=args.aux_dir, images=args.images,
-                          aligned=args.aligned, workers=args.workers, device=args.device)
+                          aligned=args.aligned, workers=args.workers, device=args.device,
+                          data=args.data, amp=args.amp, channels_last=args.channels_last)
         if trainer.checkpoint_path.exists():
             if args.no_resume:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
-        trainer.fit(progress=not args.quiet, max_minutes=args.max_minutes)
+        trainer.fit(progress=not args.quiet, max_minutes=args.max_minutes,
+                    max_steps=args.max_steps)
         log.info("done: step %d, weights in %s", trainer.step, trainer.out / "generator.pt")
         return 0
     except MorphableError as e:

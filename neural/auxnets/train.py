@@ -134,8 +134,11 @@ class AuxTrainer:
         meta = {"steps": self.step, "batch_size": self.batch_size,
                 "resolution": self.data.resolution, "model": self.data.model.name,
                 "training_data": "SyntheticFaces (SFM, procedural albedo, SH light)"}
+        # L states the landmarks it learnt (the model's), which the GAR's L_ldmk then compares
+        extra = {"L": {"landmark_index": self.landmark_index.tolist()}}
         return [save_aux(self.nets[n], n, out / f"aux_{n}.pt", self.width,
-                         metrics=(metrics or {}).get(n, {}), **meta) for n in self.names]
+                         metrics=(metrics or {}).get(n, {}), **meta, **extra.get(n, {}))
+                for n in self.names]
 
 
 @one_line_errors("neural.auxnets.train")
