@@ -28,9 +28,10 @@ def ict():
     return load_model("ict")
 
 
-def make_tiny_pack(path, n: int = 8, resolution: int = 16, seed: int = 0):
-    """A neural.real_faces pack of ``n`` synthetic SFM renders (two photos per person, every
-    fourth person held out) standing in for real photos in tests; returns the path."""
+def make_tiny_pack(path, n: int = 8, resolution: int = 16, seed: int = 0, person=None,
+                   held_out=None):
+    """A neural.real_faces pack of ``n`` synthetic SFM renders standing in for real photos in
+    tests (default: two photos per person, every fourth person held out); returns the path."""
     import numpy as np
 
     from neural.data import SyntheticFaces
@@ -40,12 +41,13 @@ def make_tiny_pack(path, n: int = 8, resolution: int = 16, seed: int = 0):
     rng = np.random.default_rng(seed)
     renders = [faces.render(**{k: v for k, v in faces.draw(rng).items() if k != "tone"})
                for _ in range(n)]
-    person = np.arange(n) // 2
+    person = np.arange(n) // 2 if person is None else np.asarray(person)
+    held_out = person % 4 == 3 if held_out is None else np.asarray(held_out, bool)
     arrays = {"image": np.stack([np.round(r["image"] * 255).astype(np.uint8) for r in renders]),
               "normals": np.stack([r["normals"] for r in renders]),
               "mask": np.stack([r["mask"] for r in renders]),
               "landmarks": np.stack([r["landmarks"] for r in renders]).astype(np.float32),
-              "person": person, "held_out": person % 4 == 3,
+              "person": person, "held_out": held_out,
               "source": np.array(["synthetic"] * n), "name": np.array([f"{i}.png" for i in range(n)]),
               "fit_pose": rng.uniform(-30, 30, (n, 3))}
     return save_pack(path, arrays)
@@ -56,3 +58,10 @@ def tiny_pack(tmp_path_factory):
     """Path of a 16 px pack of 8 synthetic crops (:func:`make_tiny_pack`)."""
     pytest.importorskip("torch")
     return make_tiny_pack(tmp_path_factory.mktemp("pack") / "tiny.npz")
+
+
+@pytest.fixture(scope="session")
+def pack_maker():
+    """:func:`make_tiny_pack`, for tests that need a pack of their own layout."""
+    pytest.importorskip("torch")
+    return make_tiny_pack

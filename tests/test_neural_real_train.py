@@ -16,20 +16,10 @@ ARGS = ["--config", "tiny", "--set", "resolution=32", "channel_base=256", "chann
 
 
 @pytest.fixture(scope="module")
-def pack(tmp_path_factory):
+def pack(tmp_path_factory, pack_maker):
     """A tiny pack made of 10 synthetic renders: 8 train photos of 6 people, 2 held out."""
-    from neural.data import SyntheticFaces
-    from neural.real_faces import save_pack
-
-    b = SyntheticFaces(resolution=32).sample(10, rng=0)
-    nchw = lambda t: t.numpy().transpose(0, 2, 3, 1)  # noqa: E731
-    arrays = {"image": np.round((nchw(b["image"]) + 1) * 127.5).clip(0, 255).astype(np.uint8),
-              "normals": nchw(b["normals"]), "mask": b["mask"][:, 0].numpy(),
-              "landmarks": b["landmarks"].numpy(),
-              "person": np.array([0, 0, 1, 1, 2, 3, 4, 5, 6, 7]),
-              "held_out": np.array([False] * 8 + [True] * 2), "source": np.array(["synthetic"] * 10),
-              "name": np.array([f"face{i}.png" for i in range(10)]), "fit_pose": b["pose"].numpy()}
-    return save_pack(tmp_path_factory.mktemp("pack") / "tiny.npz", arrays)
+    return pack_maker(tmp_path_factory.mktemp("pack") / "tiny.npz", n=10, resolution=32,
+                          person=[0, 0, 1, 1, 2, 3, 4, 5, 6, 7], held_out=[False] * 8 + [True] * 2)
 
 
 def _run(args, capsys):
