@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["solve_identity", "solve_expression", "ridge_solve", "normal_blocks", "project_rows",
-           "gram_hessian"]
+           "weighted_rows", "gram_hessian"]
 
 
 def project_rows(P, rows):
@@ -39,9 +39,17 @@ def ridge_solve(H, g, prior):
     return np.linalg.solve(A, g[..., None])[..., 0]
 
 
-def gram_hessian(P, W, Phi, gram, shift=None):
+def weighted_rows(W, Phi):
+    """``diag(W) Phi`` of coordinate-major rows Phi (N, 2, L, k) and weights W (N, L) -> (N, 2 L, k)
+    (the x rows, then the y rows): the rows of a normal equations' right side and Hessian."""
+    N, _, L, k = Phi.shape
+    return np.concatenate([W, W], 1)[..., None] * Phi.reshape(N, 2 * L, k)
+
+
+def gram_hessian(P, W, Phi, WPhi, gram, shift=None):
     """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
-    (N, 2, L, k)), using precomputed Gram blocks of the landmarks whose rows never change.
+    (N, 2, L, k)) and its :func:`weighted_rows` ``WPhi`` (N, 2 L, k), using precomputed Gram
+    blocks of the landmarks whose rows never change.
 
     With a projection shared by all points (the affine camera) and one weight ``w_g`` for
     each group g of fixed landmarks of a frame (those of one definition error), their part is
@@ -56,16 +64,15 @@ def gram_hessian(P, W, Phi, gram, shift=None):
     :func:`~morphable.fitting.rows.shared_rows`): a rank-2 correction.
     """
     N, _, L, k = Phi.shape
-    W2 = np.concatenate([W, W], 1)
     flat = Phi.reshape(N, 2 * L, k)
     if gram is None or P.ndim != 3:
-        return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
+        return WPhi.transpose(0, 2, 1) @ flat
     fixed, group, first, moving, G, rows = gram
     wf = W[:, fixed]
     wg = wf[:, first]                                               # (N, g)
     ok = np.all(wg > 0) and np.all(wf == wg[:, group])
     if not ok:
-        return (W2[..., None] * flat).transpose(0, 2, 1) @ flat
+        return WPhi.transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
     wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
     H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
@@ -78,8 +85,8 @@ def gram_hessian(P, W, Phi, gram, shift=None):
         ud = u[:, :, None] * d
         H = H + ud + ud.transpose(0, 2, 1) + c[:, None, None] * np.outer(d, d)
     Pm = Phi[:, :, moving].reshape(N, -1, k)
-    Wm = np.concatenate([W[:, moving], W[:, moving]], 1)
-    return H + (Wm[..., None] * Pm).transpose(0, 2, 1) @ Pm
+    WPm = WPhi.reshape(N, 2, L, k)[:, :, moving].reshape(N, -1, k)
+    return H + WPm.transpose(0, 2, 1) @ Pm
 
 
 def normal_blocks(P, W, basis, residual, gram=None):
@@ -87,10 +94,9 @@ def normal_blocks(P, W, basis, residual, gram=None):
     and gram as in :func:`solve_identity`, residual (N, L, 2) px)."""
     N, L = W.shape
     Phi = project_rows(P, basis)                                 # (N, 2, L, k): x rows, y rows
-    flat = Phi.reshape(N, 2 * L, -1)
-    W2 = np.concatenate([W, W], 1)
-    g = ((W2[..., None] * flat).transpose(0, 2, 1) @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
-    return gram_hessian(P, W, Phi, gram), g
+    WPhi = weighted_rows(W, Phi)
+    g = (WPhi.transpose(0, 2, 1) @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
+    return gram_hessian(P, W, Phi, WPhi, gram), g
 
 
 def solve_identity(P, target, W, A, prior, shared: bool, gram=None):

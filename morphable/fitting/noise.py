@@ -98,7 +98,7 @@ def model_variance(pb, st, depth=None):
         used = pb.mask & st.corr.defined
         d = np.where(used, depth, 0.0).sum(1) / np.maximum(used.sum(1), 1)
         scale = st.k / np.maximum(d, 1e-6)
-    return scale[:, None] ** 2 * (pb.model_std_mm[:, None] ** 2 + pb.frame_def_std ** 2)
+    return scale[:, None] ** 2 * pb.model_var_mm2
 
 
 def weights(pb, st, depth=None):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import cross
-from .linear import gram_hessian, project_rows
+from .linear import gram_hessian, project_rows, weighted_rows
 from .noise import weights
 from .offsets import damped_step, offset_normal
 from .pose import rotate
@@ -38,6 +38,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     # a group that has converged stops moving, so that fitting frames together or alone
     # gives the same result
     active = np.ones(G, bool)
+    eye_f, eye_a = np.eye(Pf), np.eye(K)
     for it in range(n_iterations):
         if it % slide_every == 0 and it:
             slide(pb, st)
@@ -52,7 +53,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
             gs = slice(None) if pb.shared else sel
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
-            Hd = Hs + m_f[..., None] * (np.eye(Pf) * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
+            Hd = Hs + m_f[..., None] * (eye_f * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
             df = np.zeros((N, Pf))
             da = np.zeros((G, K))
             if off is not None:
@@ -63,7 +64,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
                 Sa = Haa[gs] - group_sum(pb, Hfs.transpose(0, 2, 1) @ X1)
                 ba = ga[gs] - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
                 Sa = Sa + mu[gs, None, None] * (
-                    np.eye(K) * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
+                    eye_a * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
                 da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
                 df[sel] = -(x2 + (X1 @ da[gidx[sel]][..., None])[..., 0])
             else:
@@ -121,13 +122,13 @@ def normal_equations(pb: Problem, st: State):
     K = Ja4.shape[-1]
     Ja = Ja4.reshape(N, L2, K)
     off = offset_normal(pb, st, JpR, W, r, Jf4, S[0]) if pb.D else None
-    w2 = np.concatenate([W, W], 1)[..., None]
     rr = r.transpose(0, 2, 1).reshape(N, L2)
-    WJf, WJa = w2 * Jf, w2 * Ja
+    WJf, WJa = weighted_rows(W, Jf4), weighted_rows(W, Ja4)
     Hff = Jf.transpose(0, 2, 1) @ WJf
     gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if E:
-        Hff[:, 3 + n_t + n_rho:, 3 + n_t + n_rho:] += pb.expression_weight * np.eye(E)
+        ie = np.arange(3 + n_t + n_rho, Pf)             # the expressions' diagonal
+        Hff[:, ie, ie] += pb.expression_weight
         gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
     Hfa = Jf.transpose(0, 2, 1) @ WJa
     if E and pb.nonneg:
@@ -143,11 +144,12 @@ def normal_equations(pb: Problem, st: State):
                 frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
                 off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
     shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
-    Haa = gram_hessian(JpR, W, Ja4, pb.gram, shift)
+    Haa = gram_hessian(JpR, W, Ja4, WJa, pb.gram, shift)
     ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if pb.shared:
         Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
-    Haa[:, np.arange(K), np.arange(K)] += pb.prior[:K]
+    ia = np.arange(K)
+    Haa[:, ia, ia] += pb.prior[:K]
     ga = ga + pb.prior[:K] * st.alpha[:, :K]
     return Hff, gf, Hfa, Haa, ga, W, act, cost0, off
 
@@ -200,7 +202,7 @@ def _subset_cost(pb, st, W, sel):
 def _apply(pb, st, df, da, n_t, n_rho):
     t = st.t.copy()
     t[:, :n_t] += df[:, 3:3 + n_t]
-    k = st.k * np.exp(np.clip(df[:, 3 + n_t], -2.0, 2.0)) if n_rho else st.k
+    k = st.k * np.exp(np.minimum(np.maximum(df[:, 3 + n_t], -2.0), 2.0)) if n_rho else st.k
     o = 3 + n_t + n_rho
     beta = st.beta
     if pb.E:

@@ -64,7 +64,8 @@ class FitOptions:
                         ("definition_std_mm",
                          0.0 if definition_std_mm is None else definition_std_mm),
                         ("huber_k", self.huber_k)):
-            if not (np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)):
+            a = np.asarray(v)
+            if not (np.isfinite(a).all() and (a >= 0).all()):
                 raise InputError(f"{name}: must be finite and >= 0, got {v}")
         model_std_mm = np.asarray(self.model_std_mm, dtype=np.float64)
         if not auto and self.landmark_std_px == 0 and np.any(model_std_mm == 0):

@@ -17,6 +17,8 @@ __all__ = ["estimate_affine_pose", "project", "projection_jacobian", "rotate"]
 
 MIN_DEPTH_MM = 1e-3
 
+_IMAGE_AXES = np.array([1.0, -1.0])      # camera x, y -> image x right, y down
+
 
 def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = True):
     """Scaled orthographic pose from 2D-3D correspondences (linear, eos / Hartley-Zisserman).
@@ -71,7 +73,7 @@ def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = T
     U, S, Vt = np.linalg.svd(M, full_matrices=False)
     r12 = U @ Vt
     R = np.concatenate([r12, cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
-    scale = S.mean(-1)
+    scale = S.sum(-1) / 2            # the mean of the two singular values
     if not np.all(np.isfinite(R)) or not np.all(scale > 0):
         raise FitError("the affine pose estimate is degenerate (landmarks collinear?)")
     # translation that maps the weighted centroids onto each other
@@ -119,10 +121,8 @@ def project(X, R, t, k, principal, perspective: bool, jacobian: bool = True):
         g = kk / safe
     else:
         depth = np.full((N, L), np.inf)
-        g = np.broadcast_to(kk, (N, L))
-    uv = np.empty((N, L, 2))
-    uv[..., 0] = principal[:, None, 0] + g * Xc[..., 0]
-    uv[..., 1] = principal[:, None, 1] - g * Xc[..., 1]
+        g = kk
+    uv = principal[:, None] + g[..., None] * Xc[..., :2] * _IMAGE_AXES
     J = projection_jacobian(Xc, k, perspective) if jacobian else None
     return uv, Xc, J, depth
 

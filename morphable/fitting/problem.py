@@ -91,13 +91,18 @@ class Problem:
         sliding = [int(j) for lms, _ in bank.polylines for j in lms]
         self.sliding_landmarks = np.asarray(sliding, dtype=np.int64)
         # sliding outline points are defined by the outline they slide on: no offset
-        self.offset_landmarks = np.setdiff1d(np.arange(y.shape[1]), sliding)
+        offset = np.ones(y.shape[1], bool)
+        offset[sliding] = False
+        self.offset_landmarks = np.flatnonzero(offset)
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
+        # (N, L) mm^2: the model's part of each landmark's variance before the image scale
+        # (:func:`~morphable.fitting.noise.model_variance`), the same in every iteration
+        self.model_var_mm2 = model_std_mm[:, None] ** 2 + self.frame_def_std ** 2
         # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
         self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
-        self.prior = np.r_[np.full(K, self.prior_weight), np.ones(self.D)]
+        self.prior = np.concatenate([np.full(K, self.prior_weight), np.ones(self.D)])
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed

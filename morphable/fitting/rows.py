@@ -85,10 +85,13 @@ def fixed_gram(bank, K, sliding, std):
     cache = _GRAMS.setdefault(bank, {})
     sliding = sliding if sliding is not None else slice(0, 0)
     moving = np.arange(len(bank.fixed_row))[sliding]
-    fixed = np.flatnonzero(bank.fixed_row >= 0)
-    fixed = fixed[~np.isin(fixed, moving)]
+    fixed = bank.fixed_row >= 0
+    fixed[moving] = False
+    fixed = np.flatnonzero(fixed)
+    if len(fixed) < MIN_GRAM_LANDMARKS:
+        return None
     values, first, group = np.unique(std[fixed], return_index=True, return_inverse=True)
-    if len(fixed) < MIN_GRAM_LANDMARKS or len(values) > MAX_GRAM_GROUPS:
+    if len(values) > MAX_GRAM_GROUPS:
         return None
     key = (K, moving.tobytes(), group.tobytes())
     if key not in cache:
@@ -156,7 +159,8 @@ def gather(pb, st, sliding_only: bool = False):
 
 
 def combine(rows, coeffs):
-    """Coordinate-major rows (N, 3, L, k) times coefficients (N, k) -> (N, L, 3)."""
+    """Coordinate-major rows (N, 3, L, k) times coefficients (N, k), or (1, k) shared by the
+    frames, -> (N, L, 3)."""
     N, _, L, k = rows.shape
     return (rows.reshape(N, 3 * L, k) @ coeffs[..., None]).reshape(N, 3, L).transpose(0, 2, 1)
 
@@ -165,9 +169,9 @@ def identity_points(pb, A, alpha) -> np.ndarray:
     """(n, L, 3) mm: what the shared coefficients ``alpha`` (G, K) add to the points of
     identity rows ``A`` (n, 3, L, K_identity): the identity's part and the offsets."""
     if not pb.D:
-        return combine(A, np.broadcast_to(alpha, (len(A), pb.K)))
+        return combine(A, alpha)
     n = pb.n_identity
-    X = combine(A, np.broadcast_to(alpha[:, :n], (len(A), n)))
+    X = combine(A, alpha[:, :n])
     return X + face_size(pb, alpha)[:, None, None] * offsets(pb, alpha)
 
 
@@ -192,7 +196,9 @@ def residuals(pb, st, jacobian: bool, sel=slice(None)):
         X = points(pb, st, sel)
         uv, Xc, _, depth = project(X, st.R[sel], st.t[sel], st.k[sel], pb.principal[sel],
                                    pb.perspective, False)
-        r = across_outline(uv - pb.y[sel], pb.tangent[sel])
+        r = uv - pb.y[sel]
+        if pb.sliding is not None:
+            r = across_outline(r, pb.tangent[sel])
         if every:
             st.residuals = X, uv, Xc, depth, r
     J = projection_jacobian(Xc, st.k[sel], pb.perspective) if jacobian else None
