@@ -158,7 +158,9 @@ def load_pack(path) -> dict:
         raise InputError(f"{path}: pack format {int(raw['format'])}, this code reads {_FORMAT}")
     scale = float(raw.pop("normal_scale"))
     raw.pop("format")
-    q = np.cumsum(raw.pop("normals_delta").astype(np.int16), axis=2).astype(np.float32) / scale
+    # the int8 differences wrap where neighbours differ by more than 127 steps (an occluding
+    # contour); summed in int8 they wrap back, exactly, since every value lies in -127..127
+    q = np.cumsum(raw.pop("normals_delta"), axis=2, dtype=np.int8).astype(np.float32) / scale
     mask_u8, side = raw.pop("mask_u8"), raw.pop("normals_side")
     nz = np.sqrt(np.clip(1 - (q ** 2).sum(-1), 0, 1)) * np.where(side == 2, -1, 1)
     normals = np.concatenate([q, nz[..., None]], axis=-1)
