@@ -79,7 +79,7 @@ def list_photos(data, source: str, limit=None) -> list:
                  for p in paths if p.with_suffix(".pts").is_file()]
     elif source == "london":
         root = data / "faces" / "frl_london"
-        paths = sorted(list((root / "neutral_front").glob("*.jpg")) + list((root / "smiling_front").glob("*.jpg")))
+        paths = sorted([*(root / "neutral_front").glob("*.jpg"), *(root / "smiling_front").glob("*.jpg")])
         items = [(p, None, f"london/{p.name[:3]}") for p in paths if p.name[:3].isdigit()]
     else:
         raise InputError(f"--sources: unknown source {source!r} (choose from {', '.join(SOURCES)})")
@@ -150,7 +150,8 @@ def _read_cache(path: Path, model: str, detector: str) -> dict:
     except (OSError, ValueError, EOFError):
         log.warning("%s: unreadable fit cache, refitting", path)
         return {}
-    if int(c.get("format", -1)) != _CACHE_FORMAT or str(c["model"]) != model or str(c["detector_choice"]) != detector:
+    if (int(c.get("format", -1)) != _CACHE_FORMAT or str(c["model"]) != model
+            or str(c["detector_choice"]) != detector):
         log.info("%s: fits of another model or detector, refitting", path)
         return {}
     out = {}
@@ -174,8 +175,9 @@ def _write_cache(path: Path, fits: dict, model: str, detector: str, K: int, E: i
               "detector": np.array([fits[n].get("detector", "") for n in names])}
     shapes = dict(_FIT_ARRAYS, identity=(K,), expression=(E,))
     for key, shape in shapes.items():
-        arrays[key] = np.stack([np.asarray(fits[n][key], np.float64) if fits[n]["found"]
-                                else np.full(shape, np.nan) for n in names]) if names else np.zeros((0, *shape))
+        rows = [np.asarray(fits[n][key], np.float64) if fits[n]["found"] else np.full(shape, np.nan)
+                for n in names]
+        arrays[key] = np.stack(rows) if rows else np.zeros((0, *shape))
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **arrays)
@@ -205,7 +207,8 @@ def fit_source(items: list, cache: Path, model: str = "sfm", detector: str = "au
     fits = _read_cache(cache, model, detector)
     todo = [it for it in items if it["name"] not in fits]
     t0 = time.perf_counter()
-    for k, (it, rec) in enumerate(zip(todo, _pool_map(_fit_one, [(it, model, detector) for it in todo], workers))):
+    recs = _pool_map(_fit_one, [(it, model, detector) for it in todo], workers)
+    for k, (it, rec) in enumerate(zip(todo, recs)):
         fits[it["name"]] = rec
         if (k + 1) % 500 == 0:
             log.info("  fitted %d / %d (%.0f s)", k + 1, len(todo), time.perf_counter() - t0)
@@ -233,9 +236,9 @@ def bake_photo(item: dict, fit: dict, resolution: int = 64, model: str = "sfm",
     lm = np.asarray(fit["landmarks68"], np.float64)
     A = alignment(lm, resolution, model)
     img = warp_image(read_image(item["path"]), A, resolution)
-    cam = Camera(kind="affine", rotation=fit["rotation"], translation=fit["translation"], scale=float(fit["scale"]),
-                 focal=float(fit["focal"]), image_size=tuple(int(v) for v in fit["image_size"]),
-                 principal=fit["principal"])
+    cam = Camera(kind="affine", rotation=fit["rotation"], translation=fit["translation"],
+                 scale=float(fit["scale"]), focal=float(fit["focal"]),
+                 image_size=tuple(int(v) for v in fit["image_size"]), principal=fit["principal"])
     crop_cam = aligned_camera(cam, A, resolution)
     verts = m.vertices(fit["identity"], fit["expression"])
     vis = visibility(verts, m.triangles, crop_cam, supersample=supersample)
@@ -293,8 +296,9 @@ def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, 
           jpeg_quality: int = 85, normal_scale: int = 64, max_mib: float = 50.0) -> dict:
     """Fit, bake and pack the photos of ``sources`` -> the report (also written as JSON
     beside ``out``). Where the pack is larger than ``max_mib`` (0: no limit), the JPEG
-    quality is lowered in steps of 5 (to 50 at least) until it fits. InputError before any work for a missing data folder, no photos or an
-    output that cannot be written; after the fits, when no photo passes."""
+    quality is lowered in steps of 5 (to 50 at least) until it fits. InputError before any
+    work for a missing data folder, no photos or an output that cannot be written; after the
+    fits, when no photo passes."""
     from morphable.detection import resolve_detectors
     from morphable.io.atomic import atomic_path
 
@@ -312,7 +316,9 @@ def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, 
         jobs = [(it, fits[it["name"]], resolution, model) for it in items if fits[it["name"]]["found"]]
         found = len(jobs)
         passed, baked_all = 0, []
-        for (it, fit, _, _), baked in zip(jobs, _pool_map(_bake_one, jobs, workers)):
+        for j, ((it, fit, _, _), baked) in enumerate(zip(jobs, _pool_map(_bake_one, jobs, workers))):
+            if (j + 1) % 2000 == 0:
+                log.info("  baked %d / %d (%.0f s)", j + 1, len(jobs), time.perf_counter() - t0)
             baked_all.append({k: v for k, v in baked.items() if k in ("error", "residual_px64")})
             if "error" in baked or baked["residual_px64"] > max_residual:
                 continue
