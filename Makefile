@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 OUT := out
 DATA := ../shared/data
 
-.PHONY: install demo test bench clean system-deps gar-gpu
+.PHONY: install demo test bench clean system-deps gar-data gar-gpu
 
 install: $(STAMP)
 
@@ -41,6 +41,10 @@ demo: $(STAMP)
 	$(BIN)/morphable fit $(DATA)/images/image_0010.png --landmarks $(DATA)/images/image_0010.pts \
 		--model sfm --out-mesh $(OUT)/fit.obj --report $(OUT)/fit.json --overlay $(OUT)/overlay.png
 	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json $(OUT)/fit.obj $(OUT)/fit.json $(OUT)/overlay.png"
+
+# the GAR's real training pack (docs/neural.md, "Real training data"); ~30 min on one core
+gar-data: $(STAMP)
+	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real64.npz
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -27,7 +27,8 @@ from morphable.errors import InputError
 from morphable.metrics import umeyama
 from morphable.refinement.crop import face_frame
 
-__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "align_image", "IMAGE_SUFFIXES"]
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "alignment", "aligned_camera",
+           "align_image", "warp_image", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
 
@@ -251,17 +252,55 @@ class SyntheticFaces:
 
 
 # --- real images ----------------------------------------------------------------------
+def alignment(landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
+    """The similarity that :func:`align_image` warps a photo by: (68, 2) 0-based pixels ->
+    (2, 3) ``A`` with ``crop_px = A[:, :2] @ photo_px + A[:, 2]`` (a scaled rotation and a
+    shift, least squares onto :func:`template`)."""
+    scale, R, t = umeyama(landmarks, template(resolution, model))
+    return np.hstack([scale * R, t[:, None]])
+
+
+def aligned_camera(camera, A, resolution: int):
+    """The camera that sees what ``camera`` sees, in the crop a photo is warped to by the
+    similarity ``A`` (2, 3) of :func:`alignment`: the image-plane rotation becomes a roll
+    about the camera's axis, the scale multiplies the camera's, the shift its principal point
+    (:func:`morphable.refinement.crop.crop_camera` is the case without rotation)."""
+    import dataclasses
+
+    A = np.asarray(A, np.float64)
+    s = float(np.sqrt(abs(np.linalg.det(A[:, :2]))))
+    # pixel y points down, the camera's y up: the same rotation, conjugated by the flip
+    flip = np.diag([1.0, -1.0])
+    Q = np.eye(3)
+    Q[:2, :2] = flip @ (A[:, :2] / s) @ flip
+    return dataclasses.replace(camera, rotation=Q @ camera.rotation, translation=Q @ camera.translation,
+                               scale=camera.scale * s, focal=camera.focal * s,
+                               image_size=(resolution, resolution),
+                               principal=A[:, :2] @ camera.principal + A[:, 2])
+
+
 def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
     """Warp a photo so that its 68 landmarks (pixels) match :func:`template`.
 
     image : (H, W, 3) uint8 or PIL image; landmarks : (68, 2) 0-based pixels ->
     (resolution, resolution, 3) uint8.
     """
+    return warp_image(image, alignment(landmarks, resolution, model), resolution)
+
+
+def warp_image(image, A, resolution: int) -> np.ndarray:
+    """(H, W, 3) uint8 or PIL image -> (resolution, resolution, 3) uint8 by the similarity
+    ``A`` (2, 3) of :func:`alignment` (bicubic; black outside the photo). A photo shrunk by 2
+    or more is first box-filtered by the whole factor, so that the bicubic warp does not alias."""
     from PIL import Image
 
     img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
-    scale, R, t = umeyama(landmarks, template(resolution, model))
-    A = np.hstack([scale * R, t[:, None]])
+    A = np.asarray(A, np.float64)
+    f = int(1.0 / np.sqrt(abs(np.linalg.det(A[:, :2]))))
+    if f >= 2:
+        # reduced pixel q covers photo pixels f q .. f q + f - 1: its centre is f q + (f - 1) / 2
+        img = img.convert("RGB").reduce(f)
+        A = np.hstack([A[:, :2] * f, (A[:, :2] @ np.full(2, (f - 1) / 2) + A[:, 2])[:, None]])
     # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
     # our pixel centres are integers, PIL's are at +0.5
     inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))
