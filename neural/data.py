@@ -27,7 +27,8 @@ from morphable.errors import InputError
 from morphable.metrics import umeyama
 from morphable.refinement.crop import face_frame
 
-__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "align_image", "IMAGE_SUFFIXES"]
+__all__ = ["SyntheticFaces", "AlignedImageFolder", "template", "alignment", "align_image",
+           "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".webp")
 
@@ -251,8 +252,16 @@ class SyntheticFaces:
 
 
 # --- real images ----------------------------------------------------------------------
+def alignment(landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
+    """(2, 3) similarity ``A`` taking a photo's 68 landmarks (pixels) onto :func:`template`:
+    ``crop_px = A[:, :2] @ photo_px + A[:, 2]`` (0-based pixel centres in both)."""
+    scale, R, t = umeyama(landmarks, template(resolution, model))
+    return np.hstack([scale * R, t[:, None]])
+
+
 def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> np.ndarray:
-    """Warp a photo so that its 68 landmarks (pixels) match :func:`template`.
+    """Warp a photo so that its 68 landmarks (pixels) match :func:`template` (the similarity
+    of :func:`alignment`).
 
     image : (H, W, 3) uint8 or PIL image; landmarks : (68, 2) 0-based pixels ->
     (resolution, resolution, 3) uint8.
@@ -260,8 +269,7 @@ def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> n
     from PIL import Image
 
     img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
-    scale, R, t = umeyama(landmarks, template(resolution, model))
-    A = np.hstack([scale * R, t[:, None]])
+    A = alignment(landmarks, resolution, model)
     # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
     # our pixel centres are integers, PIL's are at +0.5
     inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))
