@@ -71,7 +71,7 @@ def aflw2000_landmarks(L, root, resolution: int = 64, n: int | None = None, mode
             "nme_defined": yaw_table(100 * d.mean(1) / norm, data["yaw_deg"])}
 
 
-def london_identity(R, pack, root, dlib_photos: bool = True) -> dict:
+def london_identity(R, pack, root, dlib: bool = True) -> dict:
     """R and dlib's descriptor on the London people of ``pack`` with both photos (see the
     module docstring): ``{"R", "dlib_crops", "dlib_photos"}`` each ``{"all", "held_out"}`` of
     :func:`neural.auxnets.metrics.verification_auc`."""
@@ -97,9 +97,9 @@ def london_identity(R, pack, root, dlib_photos: bool = True) -> dict:
                 "held_out": verification_auc(sim[np.ix_(held, held)])}
 
     out = {"R": table(emb[0] @ emb[1].T)}
-    d = [aligned_descriptors(a["image"][pairs[:, k]]) for k in (0, 1)]
-    out["dlib_crops"] = table(-np.linalg.norm(d[0][:, None] - d[1][None], axis=-1))
-    if dlib_photos:
+    if dlib:
+        d = [aligned_descriptors(a["image"][pairs[:, k]]) for k in (0, 1)]
+        out["dlib_crops"] = table(-np.linalg.norm(d[0][:, None] - d[1][None], axis=-1))
         photos = [photo_descriptors([Path(root) / str(a["name"][i]) for i in pairs[:, k]])
                   for k in (0, 1)]
         ok = np.isfinite(photos[0][:, 0]) & np.isfinite(photos[1][:, 0])
@@ -111,7 +111,7 @@ def london_identity(R, pack, root, dlib_photos: bool = True) -> dict:
     return out
 
 
-def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib_photos=True,
+def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib=True,
              synthetic_n: int = 32) -> dict:
     """The report of :func:`main` (see the module docstring)."""
     from neural.auxnets import NAMES, load_aux
@@ -147,7 +147,7 @@ def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib_photo
         times["aflw2000"] = time.time() - t
     if london:
         t = time.time()
-        report["london"] = london_identity(nets["R"], pack, root, dlib_photos)
+        report["london"] = london_identity(nets["R"], pack, root, dlib)
         times["london"] = time.time() - t
     report["seconds"] = {k: round(v, 1) for k, v in times.items()}
     return report
@@ -163,8 +163,8 @@ def main(argv=None) -> int:
     p.add_argument("--root", help="the shared data folder (default: $MORPHABLE_DATA or ../shared/data)")
     p.add_argument("--aflw", type=int, help="AFLW2000-3D photos (default all; 0 skips)")
     p.add_argument("--no-london", action="store_true", help="skip R and dlib on the London set")
-    p.add_argument("--no-dlib-photos", action="store_true",
-                   help="London: skip dlib on the original photos")
+    p.add_argument("--no-dlib", action="store_true",
+                   help="London: skip dlib's descriptor (the reference, independent of --aux-dir)")
     p.add_argument("--synthetic", type=int, default=32,
                    help="held-out synthetic renders (0 skips)")
     p.add_argument("--threads", type=int)
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     report = evaluate(args.data, args.aux_dir, args.root, args.aflw, not args.no_london,
-                      not args.no_dlib_photos, args.synthetic)
+                      not args.no_dlib, args.synthetic)
     from morphable.io.atomic import atomic_path
 
     out = Path(args.report)

@@ -125,12 +125,12 @@ def test_fine_tune_cli_and_report(pack, aux_dir, tmp_path, data_dir):
                        "-q"]) == 0
     out = tmp_path / "r.json"
     assert report_main(["--data", str(pack), "--report", str(out), "--aux-dir", str(aux_dir),
-                        "--root", str(data_dir), "--aflw", "3", "--no-dlib-photos", "--synthetic", "2",
+                        "--root", str(data_dir), "--aflw", "3", "--no-dlib", "--synthetic", "2",
                         "-q"]) == 0
     r = json.loads(out.read_text())
     assert r["held_out_crops"] == 4 and r["aflw2000"]["photos"] == 3
     assert np.isfinite(r["aflw2000"]["nme68"]["bins"][0]["nme_percent"])
-    assert set(r["london"]) == {"R", "dlib_crops"} and r["london"]["R"]["all"]["people"] == 2
+    assert set(r["london"]) == {"R"} and r["london"]["R"]["all"]["people"] == 2
     assert set(r["synthetic"]) == set("NPLR")
 
 
