@@ -18,11 +18,17 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-__all__ = ["GT_LANDMARK_SOURCES", "verification_auc", "landmark_errors", "synthetic_metrics",
+__all__ = ["GT_LANDMARK_SOURCES", "identity_labels", "verification_auc", "landmark_errors", "synthetic_metrics",
            "real_metrics", "pair_rows"]
 
 GT_LANDMARK_SOURCES = ("300w",)
 """Pack sources whose landmarks are annotations (the others' are detected)."""
+
+
+def identity_labels(batch, dim: int) -> torch.Tensor:
+    """R's regression target (B, dim): skin tone, then the first ``dim - 1`` identity
+    coefficients (std units)."""
+    return torch.cat([batch["skin_tone"][:, None], batch["identity"][:, :dim - 1]], 1)
 
 
 def verification_auc(similarity) -> dict:
@@ -70,8 +76,6 @@ def synthetic_metrics(nets: dict, data, fresh, landmark_index, seed: int = 0, n:
     never draws) and, for R, pairs of unseen identities of ``fresh``: normal error (degrees),
     mask IoU, landmark error (px) on ``landmark_index``, identity verification AUC, mean
     cosines and the fraction of identity-label variance R explains."""
-    from .train import identity_labels
-
     for net in nets.values():
         net.eval()
     b = data.sample(n, rng=[seed, 2**31])

@@ -41,16 +41,11 @@ from morphable.errors import MorphableError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from . import NAMES, build_aux, save_aux
+from .metrics import identity_labels, real_metrics, synthetic_metrics
 
-__all__ = ["AuxTrainer", "identity_labels", "main"]
+__all__ = ["AuxTrainer", "main"]
 
 log = logging.getLogger("neural.auxnets.train")
-
-
-def identity_labels(batch, dim: int) -> torch.Tensor:
-    """R's regression target (B, dim): skin tone, then the first ``dim - 1`` identity
-    coefficients (std units)."""
-    return torch.cat([batch["skin_tone"][:, None], batch["identity"][:, :dim - 1]], 1)
 
 
 class AuxTrainer:
@@ -187,8 +182,6 @@ class AuxTrainer:
     def validate(self, n: int = 32) -> dict:
         """Metrics per network on held-out renders (unseen seeds; R on unseen identities);
         with a real pack, on its held-out crops, the synthetic ones under ``"synthetic"``."""
-        from .metrics import real_metrics, synthetic_metrics
-
         syn = synthetic_metrics(self.nets, self.data, self.fresh, self.landmark_index,
                                 self.seed, n)
         if self.real is None:
