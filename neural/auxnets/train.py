@@ -107,7 +107,11 @@ class AuxTrainer:
         img, mask = batch["image"], batch["mask"]
         out = {}
         if "N" in self.nets:
-            face = (mask > 0.5).to(img.dtype)
+            face = mask > 0.5
+            if self.real is not None:
+                # a fit's mask and normal map may disagree at its rim
+                face = face & (batch["normals"].norm(dim=1, keepdim=True) > 0.5)
+            face = face.to(img.dtype)
             cos = (self.nets["N"](img) * batch["normals"]).sum(1, keepdim=True)
             out["N"] = ((1 - cos) * face).sum() / face.sum().clamp_min(1)
         if "P" in self.nets:
