@@ -110,6 +110,12 @@ def test_fine_tune_on_pack(pack, aux_dir, tmp_path):
         assert any(not torch.equal(a, b) for a, b in zip(before[n], net.parameters())), n
     metrics = t.validate(n=2)
     assert "ground_truth" in metrics["L"] and "synthetic" in metrics["N"]
+    # people kept out of R's training: never drawn, measured on their own
+    r = AuxTrainer(batch_size=4, nets="R", pack=pack, init=aux_dir, r_exclude_every=2)
+    out = r.real.arrays["person"][r.r_excluded[:, 0]]
+    assert len(out) == 2 and not np.isin(r.real.arrays["person"][r.r_rows], out).any()
+    assert np.isfinite(r.train_step()["R"])
+    assert r.excluded_verification()["people"] == 2
     paths = t.save(tmp_path, metrics)
     ck = torch.load(paths[0], weights_only=True)
     assert ck["width"] == 4 and "real pack" in ck["meta"]["training_data"]

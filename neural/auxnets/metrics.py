@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 
 __all__ = ["GT_LANDMARK_SOURCES", "identity_labels", "verification_auc", "landmark_errors", "synthetic_metrics",
-           "real_metrics", "pair_rows"]
+           "real_metrics", "pair_rows", "pair_verification"]
 
 GT_LANDMARK_SOURCES = ("300w",)
 """Pack sources whose landmarks are annotations (the others' are detected)."""
@@ -122,6 +122,21 @@ def pair_rows(faces) -> np.ndarray:
     return np.array(rows, np.int64).reshape(-1, 2)
 
 
+@torch.no_grad()
+def pair_verification(R, faces, pairs, batch_size: int = 64) -> dict:
+    """R's :func:`verification_auc` on the (P, 2) row pairs of ``faces`` (one person each):
+    ``identity_verification_auc``, ``identity_cos_same``, ``identity_cos_diff``, ``people``."""
+    R.eval()
+    if len(pairs) >= 2:
+        ea = _run(R, faces, pairs[:, 0], batch_size, lambda net, x: net(x))
+        eb = _run(R, faces, pairs[:, 1], batch_size, lambda net, x: net(x))
+        v = verification_auc(F.normalize(ea, dim=1) @ F.normalize(eb, dim=1).T)
+    else:
+        v = verification_auc(np.zeros((len(pairs), len(pairs))))
+    return {"identity_verification_auc": v["auc"], "identity_cos_same": v["same"],
+            "identity_cos_diff": v["different"], "people": v["people"]}
+
+
 def _run(net, faces, rows, batch_size, fn):
     return torch.cat([fn(net, faces.batch(rows[i:i + batch_size])["image"])
                       for i in range(0, len(rows), batch_size)])
@@ -182,13 +197,5 @@ def real_metrics(nets: dict, faces, batch_size: int = 64, landmark_index=None,
                 m["error_px_defined"] = landmark_errors(pred[sel], truth[sel], landmark_index)["error_px"]
             out["L"][group] = m
     if "R" in nets:
-        pairs = pair_rows(faces)
-        if len(pairs) >= 2:
-            ea = _run(nets["R"], faces, pairs[:, 0], batch_size, lambda net, x: net(x))
-            eb = _run(nets["R"], faces, pairs[:, 1], batch_size, lambda net, x: net(x))
-            v = verification_auc(F.normalize(ea, dim=1) @ F.normalize(eb, dim=1).T)
-        else:
-            v = verification_auc(np.zeros((len(pairs), len(pairs))))
-        out["R"] = {"identity_verification_auc": v["auc"], "identity_cos_same": v["same"],
-                    "identity_cos_diff": v["different"], "people": v["people"]}
+        out["R"] = pair_verification(nets["R"], faces, pair_rows(faces), batch_size)
     return out

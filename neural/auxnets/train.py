@@ -41,7 +41,8 @@ from morphable.errors import MorphableError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from . import NAMES, build_aux, save_aux
-from .metrics import identity_labels, real_metrics, synthetic_metrics
+from .metrics import (identity_labels, pair_rows, pair_verification, real_metrics,
+                      synthetic_metrics)
 
 __all__ = ["AuxTrainer", "main"]
 
@@ -59,7 +60,8 @@ class AuxTrainer:
     """
 
     def __init__(self, resolution=64, width=16, n_identities=None, batch_size=16, lr=2e-3,
-                 seed=0, model="sfm", nets=NAMES, pack=None, init=None, synthetic_share=0.0):
+                 seed=0, model="sfm", nets=NAMES, pack=None, init=None, synthetic_share=0.0,
+                 r_exclude_every=0):
         from ..data import SyntheticFaces
 
         torch.manual_seed(seed)
@@ -76,10 +78,17 @@ class AuxTrainer:
             self.real = RealFaces(pack, split="train", flip=True)
             self.test = RealFaces(pack, split="test", flip=False)
             resolution = self.real.resolution
-            group = np.unique(self.real.arrays["person"], return_inverse=True)[1]
+            person = self.real.arrays["person"]
+            group = np.unique(person, return_inverse=True)[1]
             counts = np.bincount(group)
+            # every k-th person with two photos stays out of R's training: the pack holds out
+            # too few such people (the London set's 5 %) to measure R on
+            self.r_excluded = pair_rows(self.real)[::r_exclude_every] if r_exclude_every else \
+                np.zeros((0, 2), np.int64)
+            left_out = np.isin(person, person[self.r_excluded[:, 0]])
             # crops of people with another photo: the real positives of R besides mirrors
-            self.multi = np.flatnonzero(counts[group] > 1)
+            self.multi = np.flatnonzero((counts[group] > 1) & ~left_out)
+            self.r_rows = np.flatnonzero(~left_out)
         self.synthetic_share = float(synthetic_share) if pack is not None else 1.0
         self.init, self.pack = init, pack
         self.data = SyntheticFaces(model=model, resolution=resolution, n_identities=n_identities,
@@ -139,7 +148,7 @@ class AuxTrainer:
         other crops of other people its negatives. Half the batch is drawn from people with
         more than one photo, who would otherwise rarely appear."""
         B = self.batch_size
-        index = rng.integers(len(self.real), size=B)
+        index = self.r_rows[rng.integers(len(self.r_rows), size=B)]
         if len(self.multi):
             index[: B // 2] = self.multi[rng.integers(len(self.multi), size=B // 2)]
         flipped = rng.random(B) < 0.5
@@ -193,7 +202,13 @@ class AuxTrainer:
         out = real_metrics(self.nets, self.test, landmark_index=self.landmark_index)
         for name in out:
             out[name]["synthetic"] = syn[name]
+        if "R" in out and len(self.r_excluded):
+            out["R"]["excluded_people"] = self.excluded_verification()
         return out
+
+    def excluded_verification(self) -> dict:
+        """R's verification on the train-split people kept out of its training."""
+        return pair_verification(self.nets["R"], self.real, self.r_excluded)
 
     def save(self, out, metrics=None) -> list:
         out = Path(out)
@@ -231,6 +246,9 @@ def main(argv=None) -> int:
                    help="with --data: fraction of synthetic renders in each N, P, L batch")
     p.add_argument("--max-minutes", type=float, help="stop after this much wall time")
     p.add_argument("--val-size", type=int, default=32, help="synthetic renders of the validation")
+    p.add_argument("--r-exclude-every", type=int, default=0,
+                   help="with --data: keep every k-th train-split person with two photos out of "
+                        "R's training and report R on them (meta: R.excluded_people, _start)")
     add_verbosity_arguments(p)
     args = p.parse_args(argv)
     configure(verbosity(args))
@@ -249,7 +267,10 @@ def main(argv=None) -> int:
     lr = args.lr if args.lr is not None else (5e-4 if args.data else 2e-3)
     t = AuxTrainer(args.resolution, args.width, args.identities, args.batch_size, lr=lr,
                    seed=args.seed, nets=tuple(dict.fromkeys(args.nets)), pack=args.data,
-                   init=init, synthetic_share=args.synthetic_share)
+                   init=init, synthetic_share=args.synthetic_share,
+                   r_exclude_every=args.r_exclude_every)
+    start = t.excluded_verification() if "R" in t.nets and t.real is not None and \
+        len(t.r_excluded) else None
     t0 = time.time()
     with tqdm(total=args.steps, disable=args.quiet, unit="step") as bar:
         while t.step < args.steps:
@@ -262,6 +283,8 @@ def main(argv=None) -> int:
             if t.step % args.save_every == 0 and t.step < args.steps:
                 t.save(args.out)
     metrics = t.validate(args.val_size)
+    if start is not None:
+        metrics["R"]["excluded_people_start"] = start
     for m in metrics.values():
         m["train_seconds"] = round(time.time() - t0, 1)
     t.save(args.out, metrics)
