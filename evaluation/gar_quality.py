@@ -13,6 +13,8 @@ Lambertian renderer — the synthetic renders themselves):
 - ``fid_aux``: Frechet distance between ``R``-embedding statistics of the renderer's images
   and of held-out synthetic renders (for the classical renderer: two disjoint sets) — **not**
   the Inception FID of the literature, which needs weights that cannot be downloaded here;
+- :func:`face_fd` (a function for real crops, not in this report): the same distance in dlib's
+  128-D face-descriptor space, also not Inception FID;
 - ``fid_inception`` with ``--inception FILE``: the same distance in the 2048-d pool features
   of a user-supplied Inception-v3 TorchScript file (e.g. the ``pt_inception-2015-12-05``
   network that clean-fid and torch-fidelity download), images resized to 299 px.
@@ -38,7 +40,7 @@ from neural.auxnets import NAMES, load_aux
 from neural.checkpoint import GENERATOR_FILE, default_no_norm_cycle_path, load_generator
 
 __all__ = ["normal_consistency", "landmark_consistency",
-           "identity_consistency", "frechet_distance", "load_inception", "inception_features",
+           "identity_consistency", "frechet_distance", "face_fd", "load_inception", "inception_features",
            "evaluate", "main"]
 
 METRICS = ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
@@ -89,6 +91,22 @@ def frechet_distance(feats_a, feats_b) -> float:
         eps = 1e-6 * np.eye(len(sa))
         root = linalg.sqrtm((sa + eps) @ (sb + eps))
     return float(mu @ mu + np.trace(sa + sb - 2 * root.real))
+
+
+def face_fd(images_a, images_b, model: str = "sfm") -> float:
+    """"face-FD": the Frechet distance between dlib's 128-D face descriptors of two sets of
+    aligned crops in our framing (:func:`evaluation.face_descriptor.aligned_descriptors`: no
+    detection, dlib's chip cut where the framing puts the eyes and nose), e.g. GAR samples
+    against held-out real crops. **Not** the Inception FID of the literature (whose weights
+    cannot be downloaded here): a distance in an identity space, blind to much of what
+    Inception sees (background, colour) and in other units (two disjoint sets of real faces
+    are far from 0 when the sets are small: it is biased upwards by few samples, like any FD).
+
+    ``images_a``, ``images_b``: (N, 3, R, R) in [-1, 1] (tensors or arrays) or (N, R, R, 3)
+    uint8; N > 1 each, ideally several hundred (128 dimensions)."""
+    from .face_descriptor import aligned_descriptors
+
+    return frechet_distance(aligned_descriptors(images_a, model), aligned_descriptors(images_b, model))
 
 
 def load_inception(path):
