@@ -13,16 +13,24 @@ Lambertian renderer — the synthetic renders themselves):
 - ``fid_aux``: Frechet distance between ``R``-embedding statistics of the renderer's images
   and of held-out synthetic renders (for the classical renderer: two disjoint sets) — **not**
   the Inception FID of the literature, which needs weights that cannot be downloaded here;
-- :func:`face_fd` (a function for real crops, not in this report): the same distance in dlib's
-  128-D face-descriptor space, also not Inception FID;
+- ``face_fd`` (``--data`` only): the same distance in dlib's 128-D face-descriptor space
+  (:func:`face_fd`), also not Inception FID;
 - ``fid_inception`` with ``--inception FILE``: the same distance in the 2048-d pool features
   of a user-supplied Inception-v3 TorchScript file (e.g. the ``pt_inception-2015-12-05``
   network that clean-fid and torch-fidelity download), images resized to 299 px.
 
+With ``--data PACK`` (a :mod:`neural.real_faces` pack) the faces are the pack's held-out real
+photos instead: the normal maps are their fits', the second view is another photo of the
+person or the mirror image, and the reference images of ``fid_aux`` / ``face_fd`` are the
+photos of one half of the held-out split while every renderer draws the other half's normal
+maps. The baselines are then ``photos`` (the other half's photos themselves: the floor of
+each metric, as far as the aux networks and the fits allow) and ``classical`` (the fits'
+normal maps Lambert-shaded with one skin colour and one light on grey: geometry alone).
+
 The JSON is metric-major: ``{"normal_consistency_deg": {"gar", "gar_no_norm_cycle",
-"classical"}, "landmark_consistency_px": {...}, ...}``. Also a Figure-3-like grid (one normal
-map, 8 latents). The numbers are only as good as the aux networks; their own validation
-metrics are copied into the report.
+"classical"}, "landmark_consistency_px": {...}, ...}``. Also a Figure-3-like grid
+(:func:`sample_grid`: four normal maps, six latents). The numbers are only as good as the aux
+networks; their own validation metrics are copied into the report.
 """
 from __future__ import annotations
 
@@ -34,17 +42,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from morphable.errors import MorphableError, one_line_errors
+from morphable.errors import InputError, MorphableError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from neural.auxnets import NAMES, load_aux
 from neural.checkpoint import GENERATOR_FILE, default_no_norm_cycle_path, load_generator
 
-__all__ = ["normal_consistency", "landmark_consistency",
-           "identity_consistency", "frechet_distance", "face_fd", "load_inception", "inception_features",
-           "evaluate", "main"]
+__all__ = ["normal_consistency", "landmark_consistency", "lambert", "synthetic_faces", "real_faces",
+           "identity_consistency", "frechet_distance", "face_fd", "sample_grid", "load_inception",
+           "inception_features", "evaluate", "main"]
 
 METRICS = ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
-           "fid_aux", "fid_inception")
+           "fid_aux", "face_fd", "fid_inception")
+
+SKIN_RGB = (0.78, 0.57, 0.45)
+"""Albedo of the ``classical`` renders of real photos' normal maps (linear RGB)."""
 
 
 @torch.no_grad()
@@ -143,43 +154,104 @@ def inception_features(net, images, batch_size: int = 16) -> np.ndarray:
     return torch.cat(out).numpy()
 
 
-def _grid(G, normals, path, n_latents=8, seed=0):
+def sample_grid(G, normals, path, n_latents: int = 6, seed: int = 0) -> Path:
+    """The paper's Figure-3 layout: a row per normal map of ``normals`` (F, 3, R, R), the map
+    then ``G`` under the same ``n_latents`` latents (and noise) in every row; a PNG."""
     from neural.train import normal_to_rgb, save_grid
 
     gen = torch.Generator().manual_seed(seed)
     z = torch.randn(n_latents, G.config.z_dim, generator=gen)
+    noise = G.make_noise(n_latents, gen)
+    rows = []
     with torch.no_grad():
-        imgs = G(normals[None].expand(n_latents, -1, -1, -1), z, noise=G.make_noise(n_latents, gen))
-    save_grid(torch.cat([normal_to_rgb(normals[None]), imgs]), path, ncol=n_latents + 1)
+        for n in normals:
+            rows += [normal_to_rgb(n[None]), G(n[None].expand(n_latents, -1, -1, -1), z, noise=noise)]
+    save_grid(torch.cat(rows), path, ncol=n_latents + 1)
+    return Path(path)
+
+
+def lambert(normals, albedo=SKIN_RGB, light=(-0.3, 0.4, 1.0), ambient: float = 0.35,
+            background: float = 0.0) -> torch.Tensor:
+    """(B, 3, H, W) camera-frame normals -> (B, 3, H, W) images in [-1, 1]: one albedo under
+    one directional light plus ambient, ``background`` (in [-1, 1]) where the normals are
+    zero."""
+    d = torch.nn.functional.normalize(torch.tensor(light, dtype=normals.dtype), dim=0)
+    shade = ambient + (1 - ambient) * (normals * d[None, :, None, None]).sum(1, keepdim=True).clamp(min=0)
+    img = torch.tensor(albedo, dtype=normals.dtype)[None, :, None, None] * shade * 2 - 1
+    face = normals.norm(dim=1, keepdim=True) > 0.5
+    return torch.where(face, img, torch.full_like(img, background)).clamp(-1, 1)
+
+
+def synthetic_faces(config, n_faces: int, seed: int, batch_size: int = 16) -> tuple:
+    """Held-out synthetic faces: (``faces`` {normals, normals_b (B, 3, R, R)}, baselines
+    {"classical": (images, images_b)}, reference images for the Frechet distances, the
+    landmark ids the 3DMM defines)."""
+    from neural.data import SyntheticFaces
+
+    data = SyntheticFaces.from_config(config)
+    batches = [data.sample(min(batch_size, n_faces - i), rng=[seed, i], pair=True)
+               for i in range(0, n_faces, batch_size)]
+    reference = torch.cat([data.sample(min(batch_size, n_faces - i), rng=[seed + 1, i])["image"]
+                           for i in range(0, n_faces, batch_size)])
+    cat = lambda k: torch.cat([b[k] for b in batches])  # noqa: E731
+    faces = {"normals": cat("normals"), "normals_b": cat("normals_b")}
+    index = torch.as_tensor(np.flatnonzero(data.model.landmark_ids >= 0))
+    return faces, {"classical": (cat("image"), cat("image_b"))}, reference, index
+
+
+def real_faces(data, n_faces: int, seed: int, model: str = "sfm") -> tuple:
+    """The held-out photos of a pack, as :func:`synthetic_faces` gives synthetic ones: the
+    first half of the split is the reference, the faces are up to ``n_faces`` of the
+    other half, the baselines are those photos and the :func:`lambert` renders of their fits."""
+    from morphable import load_model
+    from neural.real_faces import RealFaces
+
+    test = RealFaces(data, split="test", flip=False)
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(test))
+    half = len(order) // 2
+    ref, rest = np.sort(order[:half]), np.sort(order[half:][:n_faces])
+    a = test.batch(rest)
+    other, mirrored = test.partner(rest, rng)
+    b = test.batch(other, flipped=mirrored)
+    faces = {"normals": a["normals"], "normals_b": b["normals"]}
+    baselines = {"photos": (a["image"], b["image"]),
+                 "classical": (lambert(a["normals"]), lambert(b["normals"]))}
+    index = torch.as_tensor(np.flatnonzero(load_model(model).landmark_ids >= 0))
+    return faces, baselines, test.batch(ref)["image"], index
 
 
 @torch.no_grad()
 def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8, seed=12345,
-             grid=None, batch_size: int = 16, inception=None) -> dict:
-    """Metrics of each generator in ``generators`` (name -> Generator) and of the classical
-    Lambertian renders (``"classical"``) on ``n_faces`` held-out synthetic faces (pairs):
+             grid=None, batch_size: int = 16, inception=None, data=None) -> dict:
+    """Metrics of each generator in ``generators`` (name -> Generator) and of the baselines
+    on ``n_faces`` held-out faces (pairs) — synthetic (:func:`synthetic_faces`), or a real pack's
+    photos with ``data`` (:func:`real_faces`, which adds ``face_fd``):
     ``{metric: {renderer: value}}`` for the metrics of :data:`METRICS`; ``inception`` (a
     feature network, see :func:`load_inception`) adds ``fid_inception``."""
-    from neural.data import SyntheticFaces
-
     cfg = next(iter(generators.values())).config
-    data = SyntheticFaces.from_config(cfg)
-    index = torch.as_tensor(np.flatnonzero(data.model.landmark_ids >= 0))
-    batches = [data.sample(min(batch_size, n_faces - i), rng=[seed, i], pair=True)
-               for i in range(0, n_faces, batch_size)]
-    real = torch.cat([data.sample(min(batch_size, n_faces - i), rng=[seed + 1, i])["image"]
-                      for i in range(0, n_faces, batch_size)])
-    cat = lambda k: torch.cat([b[k] for b in batches])  # noqa: E731
-    normals, normals_b, images, images_b = cat("normals"), cat("normals_b"), cat("image"), cat("image_b")
+    if data is None:
+        faces, baselines, real, index = synthetic_faces(cfg, n_faces, seed, batch_size)
+    else:
+        faces, baselines, real, index = real_faces(data, n_faces, seed, cfg.model)
+    normals, normals_b = faces["normals"], faces["normals_b"]
+    n_faces = len(normals)
     emb = lambda x: torch.cat([aux["R"](c) for c in x.split(batch_size)]).numpy()  # noqa: E731
-    per = {"classical": {
-        "normal_consistency_deg": normal_consistency(images, normals, aux),
-        "identity_consistency_cos": identity_consistency(images, images_b, aux),
-        "fid_aux": frechet_distance(emb(images), emb(real))}}
-    if inception is not None:
-        real_feats = inception_features(inception, real, batch_size)
-        per["classical"]["fid_inception"] = frechet_distance(
-            inception_features(inception, images, batch_size), real_feats)
+    real_feats = inception_features(inception, real, batch_size) if inception is not None else None
+
+    def distances(images) -> dict:
+        out = {"fid_aux": frechet_distance(emb(images), emb(real))}
+        if data is not None:
+            out["face_fd"] = face_fd(images, real, cfg.model)
+        if inception is not None:
+            out["fid_inception"] = frechet_distance(inception_features(inception, images, batch_size),
+                                                    real_feats)
+        return out
+
+    per = {name: {"normal_consistency_deg": normal_consistency(images, normals, aux),
+                  "identity_consistency_cos": identity_consistency(images, images_b, aux),
+                  **distances(images)}
+           for name, (images, images_b) in baselines.items()}
     for name, G in generators.items():
         # the same latents and noise for every generator: differences come from the weights
         gen = torch.Generator().manual_seed(seed)
@@ -198,18 +270,17 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
             "normal_consistency_deg": normal_consistency(fake, normals, aux),
             "landmark_consistency_px": landmark_consistency(per_latent, aux, index),
             "identity_consistency_cos": identity_consistency(fake, fake_b, aux),
-            "fid_aux": frechet_distance(emb(fake), emb(real)),
+            **distances(fake),
         }
-        if inception is not None:
-            per[name]["fid_inception"] = frechet_distance(
-                inception_features(inception, fake, batch_size), real_feats)
-    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": cfg.resolution}
+    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": cfg.resolution,
+              "faces": "synthetic" if data is None else f"held-out photos of {data}",
+              "n_reference": len(real)}
     for metric in METRICS:
         values = {r: m[metric] for r, m in per.items() if metric in m}
         if values:
             report[metric] = values
     if grid is not None:
-        _grid(next(iter(generators.values())), normals[0], grid, n_latents)
+        sample_grid(next(iter(generators.values())), normals[:4], grid)
         report["grid"] = str(grid)
     return report
 
@@ -230,7 +301,11 @@ def main(argv=None) -> int:
     p.add_argument("--grid", help="Figure-3-like PNG (default: beside the report)")
     p.add_argument("--raw", action="store_true",
                    help="checkpoints: evaluate the raw generator, not its moving average")
-    p.add_argument("--faces", type=int, default=64)
+    p.add_argument("--faces", type=int, default=64,
+                   help="held-out faces (with --data: at most half the pack's test split)")
+    p.add_argument("--data", help="a neural.real_faces pack: measure on its held-out photos")
+    p.add_argument("--baseline", action="append", default=[], metavar="NAME=PATH",
+                   help="another generator to report beside gar, e.g. gar_synthetic=neural/weights/gar_tiny.pt")
     p.add_argument("--seed", type=int, default=12345)
     add_verbosity_arguments(p)
     args = p.parse_args(argv)
@@ -241,17 +316,23 @@ def main(argv=None) -> int:
         ablation = default_no_norm_cycle_path()
     if ablation and str(ablation) != "none":
         gens["gar_no_norm_cycle"] = load_generator(ablation, not args.raw)
+    for item in args.baseline:
+        name, sep, path = item.partition("=")
+        if not sep or not name or name in gens:
+            raise InputError(f"--baseline expects a new NAME=PATH, got {item!r}")
+        gens[name] = load_generator(path, not args.raw)
     inception = load_inception(args.inception) if args.inception else None
     aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
                        resolution=gens["gar"].config.resolution) for n in NAMES}
     out = Path(args.report)
     grid = Path(args.grid) if args.grid else out.with_suffix(".png")
     report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
-                      inception=inception)
+                      inception=inception, data=args.data)
     # the validation metrics our checkpoints store (None for other networks)
     report["aux_validation"] = {n: getattr(aux[n], "meta", {}).get("metrics") for n in NAMES}
     report["generators"] = {"gar": str(args.generator),
-                            "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None}
+                            "gar_no_norm_cycle": str(ablation) if "gar_no_norm_cycle" in gens else None,
+                            **dict(b.partition("=")[::2] for b in args.baseline)}
     from morphable.io.atomic import atomic_path
 
     with atomic_path(out) as tmp:

@@ -19,7 +19,7 @@ import torch
 from morphable.errors import InputError
 
 __all__ = ["WEIGHTS_DIR", "WEIGHTS_ENV", "GENERATOR_FILE", "default_generator_path",
-           "default_no_norm_cycle_path", "default_inverter_path", "default_aux_path",
+           "default_no_norm_cycle_path", "default_inverter_path", "default_aux_path", "companion_path",
            "load_network", "load_generator"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
@@ -51,6 +51,18 @@ def default_inverter_path() -> Path | None:
     """``neural/weights/inverter_tiny.pt`` if committed, else None (pass ``inverter=`` to
     use another file, e.g. ``runs/inv/inverter.pt`` of :mod:`neural.train_inverter`)."""
     return _committed("inverter_tiny.pt")
+
+
+def companion_path(generator_path, name: str) -> Path | None:
+    """The file ``name`` (e.g. ``"inverter_tiny.pt"``) beside the generator file
+    ``generator_path`` when present, else the committed one (or None): a weights folder holds
+    a GAR together with the networks trained with it (``neural/weights/`` the synthetic set,
+    ``neural/weights/real/`` the real-photo one, see the model card)."""
+    if generator_path is not None:
+        p = Path(generator_path).parent / name
+        if p.is_file():
+            return p
+    return _committed(name)
 
 
 def default_aux_path(name: str) -> Path:

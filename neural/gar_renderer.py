@@ -7,7 +7,8 @@ Weights: ``weights=`` (a ``generator.pt`` / ``checkpoint.pt`` of :mod:`neural.tr
 (:mod:`neural.checkpoint`). Without any, construction fails with an InputError unless
 ``allow_untrained=True`` (then an untrained generator of ``config``, useful for tests and
 shapes only). ``inverter=``: the inverting network V that starts an inversion's latent
-("auto": the committed ``neural/weights/inverter_tiny.pt`` if present; None: none; a path or an
+("auto": ``inverter_tiny.pt`` beside the generator's weights file, else the committed
+``neural/weights/inverter_tiny.pt``, if present; None: none; a path or an
 :class:`neural.inverter.Inverter`).
 
 Appearance: ``z`` (B, z_dim) latent, ``noise`` list of per-layer maps eps (B, 1, r, r) as
@@ -30,7 +31,7 @@ import torch
 from morphable.errors import InputError
 from morphable.renderer_plugins import RendererBase
 
-from .checkpoint import WEIGHTS_ENV, default_generator_path, load_generator
+from .checkpoint import WEIGHTS_ENV, companion_path, default_generator_path, load_generator
 from .config import get_config
 from .gar import Generator
 from .inverter import inverter_from
@@ -64,6 +65,9 @@ class GARRenderer(RendererBase):
                              f"${WEIGHTS_ENV}, or train one: python -m neural.train --config tiny)")
         self.resolution = self.generator.config.resolution
         self.seed = seed
+        if isinstance(inverter, str) and inverter == "auto":
+            # V trained against this generator: the inverter beside its weights file
+            inverter = companion_path(self.weights, "inverter_tiny.pt")
         self.inverter = inverter_from(inverter)
 
     @property

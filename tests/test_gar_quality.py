@@ -158,3 +158,30 @@ def test_committed_gar_keeps_geometry_better_than_no_norm_cycle(data_dir):
     nc = r["normal_consistency_deg"]
     # measured 14.60 against 15.38 deg on these 16 faces (64 faces: 14.71 against 16.26)
     assert nc["gar"] < nc["gar_no_norm_cycle"] - 0.3, nc
+
+
+def test_real_photo_report_has_floors_and_face_fd(pack_maker, tmp_path):
+    """On a pack, the baselines are the photos themselves (N's error against the fits is
+    their floor) and the Lambert renders of the fits; every row has a face-FD."""
+    pytest.importorskip("dlib")
+    from evaluation.gar_quality import evaluate, lambert
+    from neural.auxnets import NAMES, build_aux
+    from neural.config import get_config
+    from neural.gar import Generator
+
+    pack = pack_maker(tmp_path / "p.npz", n=12, resolution=32, person=np.arange(12),
+                      held_out=np.arange(12) >= 4)
+    torch.manual_seed(0)
+    G = Generator(get_config("tiny", resolution=32, channel_base=256, channel_max=32, z_dim=16,
+                             w_dim=16, mapping_layers=2)).eval()
+    aux = {n: build_aux(n, width=4).eval() for n in NAMES}
+    r = evaluate({"gar": G}, aux, n_faces=8, n_latents=2, data=pack)
+    assert r["n_faces"] == 4 and r["n_reference"] == 4          # two halves of the 8 held out
+    assert set(r["face_fd"]) == {"photos", "classical", "gar"}
+    assert all(np.isfinite(v) and v >= 0 for v in r["face_fd"].values())
+    assert set(r["normal_consistency_deg"]) == {"photos", "classical", "gar"}
+    # Lambert shading: lit face where the normals are, the background value elsewhere
+    n = torch.zeros(1, 3, 4, 4)
+    n[0, 2, 1:3, 1:3] = 1
+    img = lambert(n, background=-0.5)
+    assert float(img[0, :, 0, 0].max()) == -0.5 and bool((img[0, :, 1, 1] > -0.5).all())

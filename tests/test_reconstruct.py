@@ -255,3 +255,21 @@ def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):
     assert landmark_trust(dataclasses.replace(fit, model_std_mm=np.zeros(0))) == 1.0
     _, report = refine(synthetic[0], det, "classical", steps=1, resolution=32)
     assert report["loss_weights"]["lmk"] == pytest.approx(t)
+
+
+def test_gar_renderer_takes_the_inverter_beside_its_weights(tmp_path):
+    """A weights folder is a set: the generator with the V trained against it."""
+    from neural.checkpoint import default_inverter_path
+
+    cfg = get_config("tiny", resolution=16, channel_base=256, channel_max=32, z_dim=16,
+                     w_dim=16, mapping_layers=2)
+    torch.manual_seed(0)
+    torch.save({"config": cfg.to_dict(), "step": 0, "G": Generator(cfg).state_dict()},
+               tmp_path / "generator.pt")
+    alone = GARRenderer(weights=tmp_path / "generator.pt")
+    expected = default_inverter_path()
+    assert (alone.inverter is None) if expected is None else alone.inverter.source == str(expected)
+    save_inverter(Inverter(cfg), tmp_path / "inverter_tiny.pt")
+    paired = GARRenderer(weights=tmp_path / "generator.pt")
+    assert paired.inverter.source == str(tmp_path / "inverter_tiny.pt")
+    assert GARRenderer(weights=tmp_path / "generator.pt", inverter=None).inverter is None
