@@ -50,12 +50,21 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "load_aflw2000", "load_300w", "box_size",
+__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
+           "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
            "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
-REFINED = tuple(f"{m}+{r}" for m in METHODS if m.startswith("ours-") for r in ("classical", "gar"))
-"""The fits refined by inverting a renderer (not run by default: seconds per photo)."""
+
+
+def refined_methods(methods) -> tuple:
+    """``ours-*`` methods of ``methods`` followed by ``+classical`` / ``+gar``: those fits
+    refined by inverting a renderer (not run by default: seconds per photo)."""
+    return tuple(f"{m}+{r}" for m in methods if m.startswith("ours-") for r in ("classical", "gar"))
+
+
+REFINED = refined_methods(METHODS)
+"""The refined fits of :data:`METHODS`."""
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, np.inf))
 """|yaw| bins, degrees: [0, 30], (30, 60], (60, ...) (3DDFA's benchmark code puts the few
 photos beyond 90 degrees into the last bin)."""
@@ -167,6 +176,21 @@ def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = Non
 
     r = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
     return lambda img, fit: refine(img, fit, r, steps=steps)[0]
+
+
+def add_refine_arguments(p) -> None:
+    """``--steps`` and ``--gar-weights`` of the refined methods, on the parser ``p``."""
+    p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
+    p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
+
+
+def refine_options(args) -> dict:
+    """``steps`` and ``renderer_options`` (:func:`refiner`'s keywords) from the parsed
+    :func:`add_refine_arguments`; a one-line InputError when the weights file is missing."""
+    if args.gar_weights and not Path(args.gar_weights).is_file():
+        raise InputError(f"{args.gar_weights}: --gar-weights file not found")
+    return {"steps": args.steps,
+            "renderer_options": {"gar": {"weights": args.gar_weights}} if args.gar_weights else None}
 
 
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
@@ -296,8 +320,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--set", nargs="+", choices=("aflw2000", "300w"), default=["aflw2000"])
     p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
-    p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
-    p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
+    add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="photos per set (default all)")
     p.add_argument("--model", default="sfm")
     p.add_argument("--data", type=Path, default=None, help="shared data folder (default: $MORPHABLE_DATA "
@@ -310,10 +333,8 @@ def main(argv=None):
 
     root = a.data or data_root()
     model = load_model(a.model) if any(m.startswith("ours-") for m in a.methods) else None
-    if a.gar_weights and not Path(a.gar_weights).is_file():
-        raise InputError(f"{a.gar_weights}: --gar-weights file not found")
     report = {"n": a.n, "model": a.model}
-    refine = {"steps": a.steps, "renderer_options": {"gar": {"weights": a.gar_weights}} if a.gar_weights else None}
+    refine = refine_options(a)
     if any("+" in m for m in a.methods):
         report.update(steps=a.steps, gar_weights=a.gar_weights)
     if "aflw2000" in a.set:

@@ -33,13 +33,13 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .bench_alignment import data_root, refiner
+from .bench_alignment import add_refine_arguments, data_root, refine_options, refined_methods, refiner
 from .bench_fitting import similarity_error
 
 __all__ = ["METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
 
 METHODS = ("ours-facemesh", "ours-dlib", "eos-dlib", "eos-facemesh")
-REFINED = tuple(f"{m}+{r}" for m in METHODS if m.startswith("ours-") for r in ("classical", "gar"))
+REFINED = refined_methods(METHODS)
 CALIBRATION_PEOPLE = 20
 """The first people of the set, whose colours the scheme calibration's renders wore."""
 
@@ -124,8 +124,7 @@ def consistency(neutral, smiling) -> dict:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
-    p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
-    p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
+    add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="people (default all 102)")
     p.add_argument("--data", type=Path, default=None,
                    help="shared data folder (default: $MORPHABLE_DATA or ../shared/data)")
@@ -135,9 +134,7 @@ def main(argv=None):
     configure(verbosity(a))
     from morphable import load_model
 
-    if a.gar_weights and not Path(a.gar_weights).is_file():
-        raise InputError(f"{a.gar_weights}: --gar-weights file not found")
-    refine = {"steps": a.steps, "renderer_options": {"gar": {"weights": a.gar_weights}} if a.gar_weights else None}
+    refine = refine_options(a)
     model = load_model("sfm")
     pairs = london_pairs(a.data or data_root(), a.n)
     report = {"people": len(pairs), "model": "sfm", "methods": {}, "steps": a.steps, "gar_weights": a.gar_weights}

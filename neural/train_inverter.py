@@ -51,17 +51,16 @@ def normal_pool(config, n: int, seed: int) -> torch.Tensor:
     return faces.sample(n, rng=seed)["normals"]
 
 
-def pack_pool(data, split: str, n: int, seed: int) -> dict:
-    """Up to ``n`` crops of a :mod:`neural.real_faces` pack's ``split`` (a seeded choice
-    without replacement): ``normals`` (n, 3, R, R) and ``image`` (n, 3, R, R) in [-1, 1]."""
+def pack_pool(faces, held_out: bool, n: int, seed: int) -> dict:
+    """Up to ``n`` crops of the train (``held_out=False``) or test split of ``faces``, a
+    :class:`neural.real_faces.RealFaces` of a whole pack (a seeded choice without
+    replacement): ``normals`` (n, 3, R, R) and ``image`` (n, 3, R, R) in [-1, 1]."""
     import numpy as np
 
-    from .real_faces import RealFaces
-
-    faces = RealFaces(data, split=split, flip=False)
+    candidates = np.flatnonzero(faces.arrays["held_out"] == held_out)
     rng = np.random.default_rng(seed)
-    index = rng.choice(len(faces), size=min(int(n), len(faces)), replace=False)
-    batch = faces.batch(np.sort(index))
+    index = rng.choice(len(candidates), size=min(int(n), len(candidates)), replace=False)
+    batch = faces.batch(candidates[np.sort(index)])
     return {"normals": batch["normals"], "image": batch["image"]}
 
 
@@ -140,8 +139,11 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
         train_n = normal_pool(cfg, pool, seed)
         test_n = normal_pool(cfg, held_out, seed + 10_000)
     else:
-        train_n = pack_pool(data, "train", pool, seed)["normals"]
-        test = pack_pool(data, "test", held_out, seed + 10_000)
+        from .real_faces import RealFaces
+
+        faces = RealFaces(data, split="all", flip=False)      # the pack decoded once
+        train_n = pack_pool(faces, False, pool, seed)["normals"]
+        test = pack_pool(faces, True, held_out, seed + 10_000)
         test_n = test["normals"]
     V = Inverter(cfg)
     opt = torch.optim.Adam(V.parameters(), lr=lr, betas=(0.9, 0.99))
