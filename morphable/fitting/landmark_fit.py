@@ -15,9 +15,9 @@ Steps (each a module of this package, usable alone):
    re-picked every round and every second nonlinear iteration;
 3. closed-form solves for identity, then expression, under the Gaussian prior
    (:mod:`~morphable.fitting.linear`); steps 1 to 3 run ``n_linear`` times
-   (:mod:`~morphable.fitting.linear_stage`; once where no outline point is given and step 4
-   follows: with nothing to re-pick, later rounds would only alternate pose and shape, which
-   step 4 does jointly);
+   (:mod:`~morphable.fitting.linear_stage`; only the pose where no outline point is given
+   and step 4 follows: with nothing to re-pick, the rounds would only alternate pose and
+   shape, which step 4 does jointly);
 4. joint Levenberg-Marquardt over rotation (axis-angle increments, no gimbal lock),
    translation, scale (affine) or depth (perspective), expressions and identity, with
    analytic Jacobians, an optional Huber loss and a Schur complement that keeps a shared
@@ -96,8 +96,8 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
     n_iterations : int
         Levenberg-Marquardt iterations after the linear stage (0 = linear fit only).
     n_linear : int
-        Rounds of pose / outline / identity / expression linear solves (at most one where no
-        frame gives an outline point and ``n_iterations > 0``).
+        Rounds of pose / outline / identity / expression linear solves (none, only the pose,
+        where no frame gives an outline point and ``n_iterations > 0``).
     n_identity, n_expression : int or None
         Fit only the first modes (None = all).
     prior_weight, expression_weight : float >= 0
@@ -170,11 +170,12 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
     t0 += time.perf_counter() - t_bank
     pb = Problem(model, bank, options, y, given, size)
     with np.errstate(all="ignore"):
-        # with no outline point to re-pick, later linear rounds would only alternate pose and
-        # shape, which the nonlinear stage does jointly (same accuracy, a third less time)
+        # with no outline point to re-pick, the linear rounds would only alternate pose and
+        # shape, which the nonlinear stage does jointly: it starts from the mean face in the
+        # affine pose (as accurate, less time: docs/fitting.md)
         rounds = options.n_linear
         if pb.sliding is None and options.n_iterations:
-            rounds = min(rounds, 1)
+            rounds = 0
         st = linear_stage(pb, rounds)
         st, iters = lm_stage(pb, st, options.n_iterations)
         for _ in range(AUTO_ROUNDS if options.auto_std else 0):

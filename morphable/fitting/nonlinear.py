@@ -3,10 +3,14 @@
 Per frame: rotation (axis-angle increments, no gimbal lock), translation, scale (affine) or
 depth (perspective) and expressions; per group of frames: the shared coefficients (identity
 and landmark offsets). Analytic Jacobians, an optional Huber loss on the normalised residuals,
-and a Schur complement over the per-frame blocks that keeps a shared identity cheap for many
-frames (with landmark offsets, the whole system is solved by its structure:
-:mod:`~morphable.fitting.offsets`). A step is tried with growing damping until it lowers the
-group's cost; blendshape weights stay >= 0 (projected steps).
+and Marquardt's damping (``mu`` times the diagonal of the whole system). A group of one frame
+is solved whole; a larger one by the Schur complement of its per-frame blocks, which keeps a
+shared identity cheap for many frames (with landmark offsets, the whole system is solved by
+its structure: :mod:`~morphable.fitting.offsets`). A step is tried with growing damping until
+it lowers the group's cost. Blendshape weights stay >= 0: those a step would take below 0 are
+set to 0 and the rest of the step is solved again given them (clamping alone leaves a step the
+model did not predict, which the trial then often rejects). A group has converged when its
+step gains, or is predicted to gain, less than :data:`CONVERGED_GAIN`.
 """
 from __future__ import annotations
 
@@ -24,11 +28,11 @@ from .sliding import slide
 __all__ = ["lm_stage", "normal_equations", "CONVERGED_GAIN"]
 
 CONVERGED_GAIN = 1e-2
-"""A step that lowers a group's cost by less than this ends its iterations. The cost is in
-chi-square units (residuals divided by their standard deviation), so 0.01 is a step of about a
-tenth of a standard deviation in the best-determined direction: below anything the landmarks
-can tell apart. Measured on 60 SFM faces (inner 51 points, 1 px noise): 3.3 iterations instead
-of 3.9, 3D error 2.5983 mm against 2.5976 mm with the old relative rule alone."""
+"""A step that lowers a group's cost by less than this, or whose predicted decrease is less
+than this, ends its iterations. The cost is in chi-square units (residuals divided by their
+standard deviation), so 0.01 is a step of about a tenth of a standard deviation in the
+best-determined direction: below anything the landmarks can tell apart (docs/fitting.md, the
+partial-landmark benchmark: same 3D error, fewer iterations)."""
 
 
 def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
@@ -45,7 +49,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     # a group that has converged stops moving, so that fitting frames together or alone
     # gives the same result
     active = np.ones(G, bool)
-    eye_f, eye_a = np.eye(Pf), np.eye(K)
+    eye_f = np.eye(Pf)
     for it in range(n_iterations):
         if it % slide_every == 0 and it:
             slide(pb, st)
@@ -61,21 +65,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
             Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
             m_f = mu[gidx[sel]][:, None]
             Hd = Hs + m_f[..., None] * (eye_f * (np.diagonal(Hs, axis1=1, axis2=2)[:, None, :] + 1e-9))
-            df = np.zeros((N, Pf))
-            da = np.zeros((G, K))
-            if off is not None:
-                df, da = damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
-            elif K:
-                sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
-                X1, x2 = sol[..., :K], sol[..., K]
-                Sa = Haa[gs] - group_sum(pb, Hfs.transpose(0, 2, 1) @ X1)
-                ba = ga[gs] - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
-                Sa = Sa + mu[gs, None, None] * (
-                    eye_a * (np.diagonal(Sa, axis1=1, axis2=2)[:, None, :] + 1e-9))
-                da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
-                df[sel] = -(x2 + (X1 @ da[gidx[sel]][..., None])[..., 0])
-            else:
-                df[sel] = -np.linalg.solve(Hd, gfs[..., None])[..., 0]
+            df, da = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga[gs], off, mu[gs], sel)
             if attempt == 0:
                 # -g.step / 2 is at most the decrease the damped Gauss-Newton model predicts:
                 # a group whose step cannot gain CONVERGED_GAIN has converged, without a trial
@@ -88,6 +78,14 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
                 accepted |= done
                 if accepted.all():
                     break
+            crossing = pb.nonneg and E and (st.beta[sel] + df[sel, Pf - E:] < 0).any()
+            if crossing:
+                # blendshape weights the step takes below 0 go to 0 and the others are solved
+                # again given that (clamping them alone would leave a step the model did not
+                # predict, and a third of the second iterations rejected it)
+                Hd, Hfs, gfs, ga_s, off_s = _to_bound(pb, st.beta[sel], df[sel], Hd, Hfs, gfs,
+                                                      ga[gs], off)
+                df, da = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga_s, off_s, mu[gs], sel)
             new = _apply(pb, st, df, da, n_t, n_rho)
             cost1 = np.full(G, np.inf)
             cost1[gs] = _subset_cost(pb, new, W, sel)
@@ -109,6 +107,61 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
         if not active.any():
             break
     return st, iters
+
+
+def _damped_step(pb, Hd, Hfs, gfs, Haa, ga, off, mu, sel):
+    """The damped Gauss-Newton step of the frames ``sel`` -> df (N, Pf), da (G, K): Hd (n, Pf,
+    Pf) their damped blocks, Hfs (n, Pf, K), gfs (n, Pf), Haa (g, K, K) and ga (g, K) those of
+    their groups, mu (g,) the groups' damping, which the shared coefficients get times their
+    diagonal (+1e-9, as the frames' blocks in Hd: Marquardt's damping of the whole system);
+    ``off`` the offsets' blocks or None. A group of one frame is solved whole, a larger one
+    by the Schur complement of its frames' blocks: the same step."""
+    N, G, K = pb.N, 1 if pb.shared else pb.N, pb.K
+    Pf = Hd.shape[-1]
+    df, da = np.zeros((N, Pf)), np.zeros((G, K))
+    if off is not None:
+        return damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
+    gs = slice(None) if pb.shared else sel
+    if not K:
+        df[sel] = -np.linalg.solve(Hd, gfs[..., None])[..., 0]
+        return df, da
+    Had = Haa + mu[:, None, None] * (np.eye(K) * (np.diagonal(Haa, axis1=1, axis2=2)[:, None, :] + 1e-9))
+    if N == 1 or not pb.shared:
+        H = np.concatenate([np.concatenate([Hd, Hfs], -1),
+                            np.concatenate([Hfs.transpose(0, 2, 1), Had], -1)], -2)
+        x = np.linalg.solve(H, np.concatenate([gfs, ga], -1)[..., None])[..., 0]
+        df[sel], da[gs] = -x[:, :Pf], -x[:, Pf:]
+        return df, da
+    sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
+    X1, x2 = sol[..., :K], sol[..., K]
+    Sa = Had - group_sum(pb, Hfs.transpose(0, 2, 1) @ X1)
+    ba = ga - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
+    da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
+    df[sel] = -(x2 + (X1 @ da[group_index(pb)[sel]][..., None])[..., 0])
+    return df, da
+
+
+def _to_bound(pb, beta, df, Hd, Hfs, gfs, ga, off):
+    """The blocks of the same step with each blendshape weight that ``df`` (n, Pf) takes below
+    0 fixed at 0 (its step ``-beta``): the fixed steps move to the right-hand sides and their
+    rows and columns become the identity's, so that the solve returns them unchanged ->
+    the Hd, Hfs, gfs, ga and off of :func:`_damped_step`."""
+    n, Pf = df.shape
+    E = beta.shape[1]
+    fix = np.zeros((n, Pf), bool)
+    fix[:, Pf - E:] = beta + df[:, Pf - E:] < 0
+    c = np.where(fix, np.pad(-beta, ((0, 0), (Pf - E, 0))), 0.0)        # (n, Pf) fixed steps
+    keep = ~fix
+    gfs = np.where(keep, gfs + (Hd @ c[..., None])[..., 0], -c)
+    ga = ga + group_sum(pb, (c[:, None, :] @ Hfs)[:, 0])
+    Hd = np.where(keep[:, :, None] & keep[:, None, :], Hd, 0.0) + fix[:, :, None] * np.eye(Pf)
+    Hfs = np.where(keep[:, :, None], Hfs, 0.0)
+    if off is not None:
+        frames = off.C[..., :n * Pf]
+        gd = off.gd + (frames * c.reshape(-1)).sum(-1)
+        off = off._replace(C=np.concatenate([np.where(keep.reshape(-1), frames, 0.0),
+                                             off.C[..., n * Pf:]], -1), gd=gd)
+    return Hd, Hfs, gfs, ga, off
 
 
 def normal_equations(pb: Problem, st: State):

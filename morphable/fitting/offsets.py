@@ -160,15 +160,12 @@ def damped_step(Hd, Hfa, gf, Haa, ga, off: OffsetBlocks, mu: float):
 
     Damped as :func:`~morphable.fitting.nonlinear.lm_stage` damps a fit without offsets: the
     frames' blocks ``Hd`` (N, Pf, Pf) come damped, the shared coefficients get ``mu`` times
-    the diagonal of their Schur complement (+1e-9). Hfa (N, Pf, K), gf (N, Pf), Haa (1, K, K),
-    ga (1, K): the frames' and identity's blocks."""
-    N, Pf, K = Hfa.shape
+    their diagonal (+1e-9). Hfa (N, Pf, K), gf (N, Pf), Haa (1, K, K), ga (1, K): the frames'
+    and identity's blocks."""
+    K = Hfa.shape[2]
     M = len(off.Hdd)
-    Hfd = off.C[..., :N * Pf].reshape(3 * M, N, Pf).transpose(1, 2, 0)     # (N, Pf, 3M)
-    Hfs = np.concatenate([Hfa, Hfd], -1)
-    schur = (np.r_[np.diagonal(Haa[0]), np.diagonal(off.Hdd, axis1=1, axis2=2).reshape(-1)]
-             - (Hfs * np.linalg.solve(Hd, Hfs)).sum((0, 1)))
-    damp = mu * (schur + 1e-9)
+    damp = mu * (np.r_[np.diagonal(Haa[0]), np.diagonal(off.Hdd, axis1=1, axis2=2).reshape(-1)]
+                 + 1e-9)
     Hdd = off.Hdd + damp[K:].reshape(M, 3)[:, :, None] * np.eye(3)
     xf, xa, xd = _solve_whole(Hd, Hfa, Haa[0] + np.diag(damp[:K]), off, Hdd, gf, ga[0], off.gd)
     return -xf, -np.r_[xa, xd.reshape(-1)][None]
