@@ -63,6 +63,21 @@ def test_face_frame_is_one_rule_in_2d_and_3d(sfm):
         face_frame(np.full((68, 2), np.nan))
 
 
+def test_a_face_mesh_fit_is_cropped_like_its_68_points(synthetic, sfm):
+    # the FFHQ framing takes iBUG-68's eyes and mouth: a fit to the face mesh's 478 points is
+    # framed by its fitted face, not by the 478 points' rows 36-67 (which are elsewhere)
+    from morphable.fitting import simulate_landmarks
+    from morphable.fitting.schemes import load_scheme
+    from morphable.refinement.problem import set_up
+
+    image, fit68, verts = synthetic
+    pts = simulate_landmarks(sfm, fit68.cameras[0], vertices=verts, scheme=load_scheme(sfm))
+    fit478 = fit_landmarks(sfm, pts[None], np.array([[200.0, 200.0]]))
+    expect = np.array(set_up(image, fit68, 0, 64).crop)
+    got = np.array(set_up(image, fit478, 0, 64).crop)
+    assert np.abs(got - expect).max() < 0.05 * expect[2], (got, expect)
+
+
 def test_crop_camera_maps_pixels():
     cam = Camera.looking_at_face((300, 200), yaw=10)
     pts = np.array([[10.0, 20, 30], [-40, 5, 60]])

@@ -53,7 +53,13 @@ def set_up(image, fit, frame: int, resolution: int) -> Problem:
     import torch
 
     lm_in = np.asarray(fit.landmarks[frame], dtype=np.float64)
-    crop = face_crop(np.where(np.isfinite(lm_in), lm_in, fit.fitted_landmarks[frame]))
+    # the FFHQ framing needs iBUG-68's eyes and mouth: the given points where they are the 68
+    # (the fitted ones where missing), else the fitted face's (a face mesh's 478 points have
+    # other indices)
+    if len(lm_in) == 68:
+        crop = face_crop(np.where(np.isfinite(lm_in), lm_in, fit.fitted_landmarks[frame]))
+    else:
+        crop = face_crop(fit.landmarks_68_px()[frame])
     cam = crop_camera(fit.cameras[frame], crop, resolution)
     target = crop_image(image, crop, resolution)
     verts = fit.model.vertices(np.asarray(fit.frame_identity[frame], dtype=np.float64),
