@@ -116,11 +116,11 @@ def _damped_step(pb, Hd, Hfs, gfs, Haa, ga, off, mu, sel):
     diagonal (+1e-9, as the frames' blocks in Hd: Marquardt's damping of the whole system);
     ``off`` the offsets' blocks or None. A group of one frame is solved whole, a larger one
     by the Schur complement of its frames' blocks: the same step."""
+    if off is not None:
+        return damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
     N, G, K = pb.N, 1 if pb.shared else pb.N, pb.K
     Pf = Hd.shape[-1]
     df, da = np.zeros((N, Pf)), np.zeros((G, K))
-    if off is not None:
-        return damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
     gs = slice(None) if pb.shared else sel
     if not K:
         df[sel] = -np.linalg.solve(Hd, gfs[..., None])[..., 0]
