@@ -124,6 +124,40 @@ def test_more_iterations_do_not_increase_the_cost(sfm, face):
     assert costs[1] <= costs[0] + 1e-9
 
 
+@pytest.mark.parametrize("jaw", [True, False])
+def test_estimated_convergence_test_ends_where_the_full_one_does(sfm, monkeypatch, jaw):
+    # the estimate only skips normal equations whose test would have ended the fit: with it
+    # disabled (every convergence test from new normal equations) the fits are the same
+    from morphable.fitting import nonlinear
+
+    rng = np.random.default_rng(4)
+    frames = []
+    for yaw in (-40, -10, 25, 45):
+        lms, _, _ = synth(sfm, yaw=yaw, pitch=rng.uniform(-15, 15),
+                          identity=rng.standard_normal(sfm.n_identity),
+                          expression=np.abs(rng.standard_normal(sfm.n_expression)) * 0.5)
+        lms = lms + rng.normal(size=lms.shape)
+        if not jaw:
+            lms[:17] = np.nan
+        frames.append(lms)
+    frames = np.stack(frames)
+    settings = [dict(), dict(camera="perspective"), dict(shared_identity=False)]
+    runs, calls = {}, []
+    estimate = nonlinear._predicted_decrease
+    monkeypatch.setattr(nonlinear, "_predicted_decrease",
+                        lambda *a: calls.append(1) or estimate(*a))
+    for gain in (nonlinear.ESTIMATE_BELOW_GAIN, 0.0):
+        monkeypatch.setattr(nonlinear, "ESTIMATE_BELOW_GAIN", gain)
+        runs[gain] = ([fit_landmarks(sfm, f, (512, 512)) for f in frames]
+                      + [fit_landmarks(sfm, frames, (512, 512), **kw) for kw in settings[1:]])
+        if gain:
+            assert calls                      # the estimate was tried
+    for a, b in zip(*runs.values()):
+        assert a.iterations == b.iterations
+        for i in range(a.n_frames):
+            assert np.abs(a.vertices(i) - b.vertices(i)).max() < 1e-9
+
+
 def test_expression_is_recovered(sfm):
     beta = np.zeros(sfm.n_expression)
     beta[sfm.expression_index("surprise")] = 1.0

@@ -16,7 +16,7 @@ from .noise import weights
 from .pose import estimate_affine_pose
 from .problem import Problem, State
 from .offsets import solve_identity_offsets
-from .rows import combine, from_coefficients, gather, identity_points, points
+from .rows import combine, fixed_rows, from_coefficients, identity_points, points
 from .sliding import slide
 
 __all__ = ["linear_stage"]
@@ -49,8 +49,7 @@ def _affine_linear_stage(pb: Problem, n_linear: int) -> State:
     corr = Correspondences.fixed(pb.bank, N)
     alpha, beta = np.zeros((G, K)), np.zeros((N, E))
     W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)     # the first pose: fixed landmarks only
-    st = State(None, None, None, alpha, beta, corr)
-    gather(pb, st)
+    st = State(None, None, None, alpha, beta, corr, fixed_rows(pb, N))
     for it in range(max(n_linear, 1)):
         st.alpha, st.beta = alpha, beta
         R, t, s = estimate_affine_pose(points(pb, st), pb.y, W0, pb.principal, check=it == 0)

@@ -146,8 +146,8 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
     used = pb.mask & st.corr.defined
     d2 = (r ** 2).sum(-1)
     rmse = np.sqrt(np.where(used, d2, 0.0).sum(1) / np.maximum(used.sum(1), 1))
-    finite = all(np.all(np.isfinite(a)) for a in (st.R, st.t, st.k, st.alpha, st.beta, rmse))
-    if not finite:
+    parts = (st.R, st.t, st.k, st.alpha, st.beta, rmse)
+    if not np.isfinite(np.concatenate([a.ravel() for a in parts])).all():
         raise FitError("the fit did not converge to finite values (degenerate landmarks?)")
     if pb.perspective and np.any(used & ~(depth > 0)):
         raise FitError("the perspective fit put landmarks behind the camera")

@@ -17,12 +17,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .correspondences import across_outline
+from .correspondences import Correspondences, across_outline
 from .pose import project, projection_jacobian
 
 __all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "MIN_GRAM_LANDMARKS", "FixedGram",
            "fixed_gram", "face_size",
-           "from_coefficients", "offsets", "shared_rows", "gather", "combine", "identity_points",
+           "from_coefficients", "offsets", "shared_rows", "fixed_rows", "gather", "combine", "identity_points",
            "points", "residuals"]
 
 # per landmark bank (so per model): arrays derived from its rows, built on a model's first fit
@@ -141,21 +141,30 @@ def shared_rows(pb, st) -> np.ndarray:
     return A + shift.transpose(0, 2, 1)[..., None] * pb.size_direction
 
 
-def gather(pb, st, sliding_only: bool = False):
-    """Gather the mean (N, L, 3) and the identity and expression rows (N, 3, L, K|E) of the
-    correspondences; after the first time only the sliding outline landmarks are redone."""
-    c = st.corr
-    if sliding_only and st.rows is not None:
-        if pb.sliding is not None:
-            st.residuals = None
-            c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
-            for src, dst in zip((pb.AT, pb.BT), (st.rows[1], st.rows[2])):
-                c.gather_coordinates(src, pb.sliding, dst)
+def fixed_rows(pb, n_frames: int):
+    """The mean (N, L, 3) and the identity and expression rows (N, 3, L, K|E) at the bank's
+    fixed correspondences (:meth:`~morphable.fitting.correspondences.Correspondences.fixed`;
+    0 for landmarks without one), where a fit starts: copies of rows gathered once per model,
+    scheme and modes (gathering them was a twentieth of a 51-point fit's time)."""
+    cache = _BASIS_ROWS.setdefault(pb.bank, {})
+    key = ("fixed", pb.AT.shape[-1], pb.BT.shape[-1])
+    if key not in cache:
+        c = Correspondences.fixed(pb.bank, 1)
+        cache[key] = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT),
+                      c.gather_coordinates(pb.BT))
+    return tuple(np.repeat(x, n_frames, 0) for x in cache[key])
+
+
+def gather(pb, st):
+    """Gather the rows of the sliding outline landmarks anew, into ``st.rows`` (those of
+    :func:`fixed_rows`; the fixed landmarks' do not change)."""
+    if pb.sliding is None:
         return
-    # identity and expression rows coordinate-major, (N, 3, L, k): projections are one GEMM
-    st.rows = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT),
-               c.gather_coordinates(pb.BT))
+    c = st.corr
     st.residuals = None
+    c.gather_static(pb.bank.mean, pb.sliding, st.rows[0])
+    for src, dst in zip((pb.AT, pb.BT), (st.rows[1], st.rows[2])):
+        c.gather_coordinates(src, pb.sliding, dst)
 
 
 def combine(rows, coeffs):

@@ -43,4 +43,4 @@ def slide(pb: Problem, st: State):
         X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
         projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
     pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
-    gather(pb, st, sliding_only=True)
+    gather(pb, st)
