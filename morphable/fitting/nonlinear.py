@@ -135,20 +135,8 @@ def _predicted_decrease(pb, st, WJ, Hd, Hfs, Haa, mu, sel):
     faces (inner 51) it was 0.07-10x the decrease new normal equations then predicted, and
     wherever it was below ``CONVERGED_GAIN / 10`` so was theirs below ``CONVERGED_GAIN``: fits
     end with the same results and iterations as with the full test (docs/fitting.md)."""
-    WJf, WJa = WJ
-    N, E = pb.N, pb.E
     _, _, _, _, _, r = residuals(pb, st, False)
-    rr = r.transpose(0, 2, 1).reshape(N, -1, 1)
-    gf = (WJf.transpose(0, 2, 1) @ rr)[..., 0]
-    ga = (WJa.transpose(0, 2, 1) @ rr)[..., 0]
-    if E:
-        gf[:, -E:] += pb.expression_weight * st.beta
-        if pb.nonneg:          # weights the bound holds at 0 leave the step
-            gf[:, -E:] = np.where((st.beta <= 0) & (gf[:, -E:] > 0), 0.0, gf[:, -E:])
-    if pb.shared:
-        ga = ga.sum(0, keepdims=True)
-    K = ga.shape[-1]
-    ga = ga + pb.prior[:K] * st.alpha[:, :K]
+    gf, ga, _ = _gradient(pb, st, WJ, r)
     gs = slice(None) if pb.shared else sel
     df, da, _ = _damped_step(pb, Hd, Hfs, gf[sel], Haa, ga[gs], None, mu, sel)
     out = np.full(len(ga), np.inf)
@@ -261,7 +249,6 @@ def normal_equations(pb: Problem, st: State):
     N, E = pb.N, pb.E
     n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
     Pf = 3 + n_t + n_rho + E
-    act = np.zeros((N, Pf), bool)
     X, uv, Xc, Jp, depth, r = residuals(pb, st, True)
     W = _robust(pb, weights(pb, st, depth), r)
     cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
@@ -283,36 +270,46 @@ def normal_equations(pb: Problem, st: State):
     K = Ja4.shape[-1]
     Ja = Ja4.reshape(N, L2, K)
     off = offset_normal(pb, st, JpR, W, r, Jf4, S[0]) if pb.D else None
-    rr = r.transpose(0, 2, 1).reshape(N, L2)
     WJf, WJa = weighted_rows(W, Jf4), weighted_rows(W, Ja4)
+    gf, ga, act = _gradient(pb, st, (WJf, WJa), r)
     Hff = Jf.transpose(0, 2, 1) @ WJf
-    gf = (WJf.transpose(0, 2, 1) @ rr[..., None])[..., 0]
     if E:
         ie = np.arange(3 + n_t + n_rho, Pf)             # the expressions' diagonal
         Hff[:, ie, ie] += pb.expression_weight
-        gf[:, 3 + n_t + n_rho:] += pb.expression_weight * st.beta
     Hfa = Jf.transpose(0, 2, 1) @ WJa
-    if E and pb.nonneg:
-        # blendshape weights held at 0 by the bound leave this step (projected Newton)
-        o = 3 + n_t + n_rho
-        act[:, o:] = (st.beta <= 0) & (gf[:, o:] > 0)
-        if act.any():
-            keep = ~act
-            Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
-            gf = np.where(keep, gf, 0.0)
-            Hfa = np.where(keep[:, :, None], Hfa, 0.0)
-            if off is not None:
-                frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
-                off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
+    if act.any():
+        keep = ~act
+        Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
+        Hfa = np.where(keep[:, :, None], Hfa, 0.0)
+        if off is not None:
+            frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
+            off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
     shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
-    Haa = gram_hessian(JpR, W, Ja4, WJa, pb.gram, shift)
-    ga = (WJa.transpose(0, 2, 1) @ rr[..., None])[..., 0]
-    if pb.shared:
-        Haa, ga = Haa.sum(0, keepdims=True), ga.sum(0, keepdims=True)
+    Haa = group_sum(pb, gram_hessian(JpR, W, Ja4, WJa, pb.gram, shift))
     ia = np.arange(K)
     Haa[:, ia, ia] += pb.prior[:K]
-    ga = ga + pb.prior[:K] * st.alpha[:, :K]
     return Hff, gf, Hfa, Haa, ga, W, act, cost0, off, (WJf, WJa)
+
+
+def _gradient(pb, st, WJ, r):
+    """The cost's gradient (in the Gauss-Newton scale of the normal equations) at ``st``,
+    priors included, from the weighted Jacobian rows ``WJ`` = (WJf (N, 2 L, Pf), WJa (N, 2 L,
+    K)) and the residuals ``r`` (N, L, 2) px -> gf (N, Pf), ga (G, K), and the expression
+    bound's active set act (N, Pf): the blendshape weights held at 0 whose gradient would
+    take them below (their gf is 0: they leave the step, projected Newton)."""
+    WJf, WJa = WJ
+    E = pb.E
+    rr = r.transpose(0, 2, 1).reshape(len(r), -1, 1)
+    gf = (WJf.transpose(0, 2, 1) @ rr)[..., 0]
+    ga = group_sum(pb, (WJa.transpose(0, 2, 1) @ rr)[..., 0])
+    act = np.zeros(gf.shape, bool)
+    if E:
+        gf[:, -E:] += pb.expression_weight * st.beta
+        if pb.nonneg:
+            act[:, -E:] = (st.beta <= 0) & (gf[:, -E:] > 0)
+            gf = np.where(act, 0.0, gf)
+    K = ga.shape[-1]
+    return gf, ga + pb.prior[:K] * st.alpha[:, :K], act
 
 
 def _across_rows(pb: Problem, J):
