@@ -24,6 +24,7 @@ their right cheek), pitch about x (positive turns the nose down), roll about the
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -152,8 +153,9 @@ class Camera:
         if self.principal is None:
             self.principal = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
         self.principal = np.asarray(self.principal, dtype=np.float64).reshape(2)
-        vals = [self.rotation, self.translation, self.principal, [self.scale, self.focal]]
-        if not all(np.isfinite(v).all() for v in vals):
+        if not (np.isfinite(self.rotation).all() and np.isfinite(self.translation).all()
+                and np.isfinite(self.principal).all() and math.isfinite(self.scale)
+                and math.isfinite(self.focal)):
             raise InputError("camera parameters contain NaN or inf")
 
     # --- construction -------------------------------------------------------------------

@@ -578,7 +578,7 @@ def test_offsets_solved_by_structure_equal_the_dense_fit(sfm, ict, model_name, s
     monkeypatch.setattr(nonlinear, "shared_rows", dense_rows)
     monkeypatch.setattr(nonlinear, "offset_normal", lambda *args: None)
     monkeypatch.setattr(nonlinear, "gram_hessian",
-                        lambda P, W, Phi, WPhi, gram, shift: gram_hessian(P, W, Phi, WPhi, None))
+                        lambda P, W, Q, gram, shift: gram_hessian(P, W, Q, None))
     monkeypatch.setattr(linear_stage, "solve_identity_offsets", dense_identity)
     slow = fit_landmarks(model, lms, (512, 512), **kw)
     assert fast.iterations == slow.iterations

@@ -40,16 +40,18 @@ def ridge_solve(H, g, prior):
 
 
 def weighted_rows(W, Phi):
-    """``diag(W) Phi`` of coordinate-major rows Phi (N, 2, L, k) and weights W (N, L) -> (N, 2 L, k)
-    (the x rows, then the y rows): the rows of a normal equations' right side and Hessian."""
+    """``diag(sqrt(W)) Phi`` of coordinate-major rows Phi (N, 2, L, k) and weights W (N, L) ->
+    Q (N, 2 L, k) (the x rows, then the y rows) and the square roots s (N, 2 L, 1): a normal
+    equations' Hessian is ``Q^T Q`` (one symmetric product), its right side ``Q^T (s r)``."""
     N, _, L, k = Phi.shape
-    return np.concatenate([W, W], 1)[..., None] * Phi.reshape(N, 2 * L, k)
+    s = np.sqrt(np.concatenate([W, W], 1))[..., None]
+    return s * Phi.reshape(N, 2 * L, k), s
 
 
-def gram_hessian(P, W, Phi, WPhi, gram, shift=None):
+def gram_hessian(P, W, Q, gram, shift=None):
     """``Phi^T diag(W) Phi`` per frame, (N, k, k), for ``Phi = P @ rows`` (coordinate-major,
-    (N, 2, L, k)) and its :func:`weighted_rows` ``WPhi`` (N, 2 L, k), using precomputed Gram
-    blocks of the landmarks whose rows never change.
+    (N, 2, L, k)) from its :func:`weighted_rows` ``Q`` (as (N, 2, L, k)), using precomputed
+    Gram blocks of the landmarks whose rows never change.
 
     With a projection shared by all points (the affine camera) and one weight ``w_g`` for
     each group g of fixed landmarks of a frame (those of one definition error), their part is
@@ -63,16 +65,17 @@ def gram_hessian(P, W, Phi, WPhi, gram, shift=None):
     plus ``s_l d^T`` (a shared fit's landmark offsets growing with the face,
     :func:`~morphable.fitting.rows.shared_rows`): a rank-2 correction.
     """
-    N, _, L, k = Phi.shape
-    flat = Phi.reshape(N, 2 * L, k)
+    N, _, L, k = Q.shape
     if gram is None or P.ndim != 3:
-        return WPhi.transpose(0, 2, 1) @ flat
+        flat = Q.reshape(N, 2 * L, k)
+        return flat.transpose(0, 2, 1) @ flat
     fixed, group, first, moving, G, rows = gram
     wf = W[:, fixed]
     wg = wf[:, first]                                               # (N, g)
     ok = np.all(wg > 0) and np.all(wf == wg[:, group])
     if not ok:
-        return WPhi.transpose(0, 2, 1) @ flat
+        flat = Q.reshape(N, 2 * L, k)
+        return flat.transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
     wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
     H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
@@ -84,9 +87,8 @@ def gram_hessian(P, W, Phi, WPhi, gram, shift=None):
         c = (wMs * s).sum((1, 2))
         ud = u[:, :, None] * d
         H = H + ud + ud.transpose(0, 2, 1) + c[:, None, None] * np.outer(d, d)
-    Pm = Phi[:, :, moving].reshape(N, -1, k)
-    WPm = WPhi.reshape(N, 2, L, k)[:, :, moving].reshape(N, -1, k)
-    return H + WPm.transpose(0, 2, 1) @ Pm
+    Qm = np.ascontiguousarray(Q[:, :, moving]).reshape(N, -1, k)
+    return H + Qm.transpose(0, 2, 1) @ Qm
 
 
 def normal_blocks(P, W, basis, residual, gram=None):
@@ -94,9 +96,9 @@ def normal_blocks(P, W, basis, residual, gram=None):
     and gram as in :func:`solve_identity`, residual (N, L, 2) px)."""
     N, L = W.shape
     Phi = project_rows(P, basis)                                 # (N, 2, L, k): x rows, y rows
-    WPhi = weighted_rows(W, Phi)
-    g = (WPhi.transpose(0, 2, 1) @ residual.transpose(0, 2, 1).reshape(N, 2 * L, 1))[..., 0]
-    return gram_hessian(P, W, Phi, WPhi, gram), g
+    Q, s = weighted_rows(W, Phi)
+    g = (Q.transpose(0, 2, 1) @ (s * residual.transpose(0, 2, 1).reshape(N, 2 * L, 1)))[..., 0]
+    return gram_hessian(P, W, Q.reshape(Phi.shape), gram), g
 
 
 def solve_identity(P, target, W, A, prior, shared: bool, gram=None):

@@ -27,7 +27,8 @@ def effective_parameters(pb: Problem, st: State) -> np.ndarray:
     parameter (pose) counts 1, a regularised one ``1 - prior * posterior variance``, one
     held at its bound 0; the posterior covariance comes from the Schur complement (with
     landmark offsets, from :func:`~morphable.fitting.offsets.posterior_variances`)."""
-    Hff, _, Hfa, Haa, _, _, act, _, off, _ = normal_equations(pb, st)
+    ne = normal_equations(pb, st)
+    Hff, Hfa, Haa, act, off = ne.Hff, ne.Hfa, ne.Haa, ne.act, ne.off
     E, K = pb.E, pb.K
     gamma = np.zeros(Haa.shape[0])
     if off is not None:

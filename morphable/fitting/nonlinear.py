@@ -16,6 +16,8 @@ step's own Jacobian, and a clear pass ends the group without new normal equation
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..camera import cross
@@ -27,7 +29,7 @@ from .problem import Problem, State, group_index, group_sum
 from .rows import offsets, residuals, shared_rows
 from .sliding import slide
 
-__all__ = ["lm_stage", "normal_equations", "CONVERGED_GAIN"]
+__all__ = ["lm_stage", "normal_equations", "NormalEquations", "CONVERGED_GAIN"]
 
 CONVERGED_GAIN = 1e-2
 """A step that lowers a group's cost by less than this, or whose predicted decrease is less
@@ -48,9 +50,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     correspondences every ``slide_every``-th -> (state, iterations run)."""
     N, K, E = pb.N, pb.K, pb.E
     G = 1 if pb.shared else N
-    n_t = 3 if pb.perspective else 2
-    n_rho = 0 if pb.perspective else 1
-    Pf = 3 + n_t + n_rho + E
+    n_t, n_rho, Pf = _frame_params(pb)
     mu = np.full(G, 1e-3)
     gidx = group_index(pb)
     iters = 0
@@ -60,7 +60,11 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     for it in range(n_iterations):
         if it % slide_every == 0 and it:
             slide(pb, st)
-        Hff, gf, Hfa, Haa, ga, W, _, cost0, off, WJ = normal_equations(pb, st)
+        ne = normal_equations(pb, st)
+        Hff, gf, Hfa, Haa, ga, W, cost0, off = (ne.Hff, ne.gf, ne.Hfa, ne.Haa, ne.ga, ne.W,
+                                                ne.cost, ne.off)
+        # a group of one frame is solved whole (each attempt damps a copy of its system)
+        whole = ne.H if off is None and K and G == N else None
         accepted = ~active
         stepped = np.zeros(G, bool)
         gain = np.zeros(G)
@@ -69,11 +73,16 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
             # slice, not a copy of every frame's rows)
             sel = slice(None) if pb.shared or not accepted.any() else np.flatnonzero(~accepted)
             gs = slice(None) if pb.shared else sel
-            Hs, Hfs, gfs = Hff[sel], Hfa[sel], gf[sel]
-            Hd = Hs.copy()
-            _damp(Hd, mu[gidx[sel]])
-            df, da, unit = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga[gs], off, mu[gs], sel,
-                                        pb.nonneg)
+            Hfs, gfs = Hfa[sel], gf[sel]
+            if whole is not None:
+                Hd = whole[sel].copy()
+                _damp(Hd, mu[gs])
+                df, da, unit = _whole_step(pb, Hd, gfs, ga[gs], sel, pb.nonneg)
+            else:
+                Hd = Hff[sel].copy()
+                _damp(Hd, mu[gidx[sel]])
+                df, da = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga[gs], off, mu[gs], sel)
+                unit = None
             if attempt == 0:
                 # -g.step / 2 is at most the decrease the damped Gauss-Newton model predicts:
                 # a group whose step cannot gain CONVERGED_GAIN has converged, without a trial
@@ -96,7 +105,7 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
                 else:
                     Hd, Hfs, gfs, ga_s, off_s = _to_bound(pb, st.beta[sel], df[sel], Hd, Hfs,
                                                           gfs, ga[gs], off)
-                    df, da, _ = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga_s, off_s, mu[gs], sel)
+                    df, da = _damped_step(pb, Hd, Hfs, gfs, Haa[gs], ga_s, off_s, mu[gs], sel)
             new = _apply(pb, st, df, da, n_t, n_rho)
             cost1 = np.full(G, np.inf)
             cost1[gs] = _subset_cost(pb, new, W, sel)
@@ -107,7 +116,8 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
                 if off is None and near.any() and (pb.sliding is None or (it + 1) % slide_every):
                     # the next iteration's convergence test, estimated with this Jacobian:
                     # a group it passes by a wide margin is done without new normal equations
-                    est = _predicted_decrease(pb, new, WJ, Hd, Hfs, Haa[gs], mu[gs], sel)
+                    est = _predicted_decrease(pb, new, ne.rows, Hd, Hfs, Haa[gs], mu[gs], sel,
+                                              whole is not None)
                     active &= ~(near & (est < CONVERGED_GAIN / 10))
                 st = _merge(pb, st, new, ok[gidx], ok)
                 accepted |= ok
@@ -126,57 +136,66 @@ def lm_stage(pb: Problem, st: State, n_iterations: int, slide_every: int = 2):
     return st, iters
 
 
-def _predicted_decrease(pb, st, WJ, Hd, Hfs, Haa, mu, sel):
+def _predicted_decrease(pb, st, rows, Hd, Hfs, Haa, mu, sel, whole: bool):
     """The decrease (G,) the damped Gauss-Newton model predicts for a step from ``st`` (G,
-    inf outside ``sel``), from the weighted Jacobian rows ``WJ`` of the state the step left
-    and that step's blocks (Hd, Hfs, Haa, mu: :func:`_damped_step`): the residuals' change
-    is the new state's, the Jacobian's is not. At a Gauss-Newton step's end the gradient of
-    the linearisation is 0, so what remains is the residuals' nonlinearity. On 40 benchmark
-    faces (inner 51) it was 0.07-10x the decrease new normal equations then predicted, and
-    wherever it was below ``CONVERGED_GAIN / 10`` so was theirs below ``CONVERGED_GAIN``: fits
-    end with the same results and iterations as with the full test (docs/fitting.md)."""
+    inf outside ``sel``), from the weighted Jacobian rows ``rows`` of the state the step left
+    and that step's blocks (Hd, Hfs, Haa, mu: :func:`_damped_step`, or with ``whole`` Hd the
+    damped whole system of :func:`_whole_step`): the residuals' change is the new state's, the
+    Jacobian's is not. At a Gauss-Newton step's end the gradient of the linearisation is 0, so
+    what remains is the residuals' nonlinearity. On 40 benchmark faces (inner 51) it was
+    0.07-10x the decrease new normal equations then predicted, and wherever it was below
+    ``CONVERGED_GAIN / 10`` so was theirs below ``CONVERGED_GAIN``: fits end with the same
+    results and iterations as with the full test (docs/fitting.md)."""
     _, _, _, _, _, r = residuals(pb, st, False)
-    gf, ga, _ = _gradient(pb, st, WJ, r)
+    gf, ga, _ = _gradient(pb, st, rows, r)
     gs = slice(None) if pb.shared else sel
-    df, da, _ = _damped_step(pb, Hd, Hfs, gf[sel], Haa, ga[gs], None, mu, sel)
+    if whole:
+        df, da, _ = _whole_step(pb, Hd, gf[sel], ga[gs], sel)
+    else:
+        df, da = _damped_step(pb, Hd, Hfs, gf[sel], Haa, ga[gs], None, mu, sel)
     out = np.full(len(ga), np.inf)
     out[gs] = -0.5 * (group_sum(pb, (gf[sel] * df[sel]).sum(-1)) + (ga[gs] * da[gs]).sum(-1))
     return out
 
 
-def _damped_step(pb, Hd, Hfs, gfs, Haa, ga, off, mu, sel, unit: bool = False):
-    """The damped Gauss-Newton step of the frames ``sel`` -> df (N, Pf), da (G, K), unit: Hd
-    (n, Pf, Pf) their damped blocks, Hfs (n, Pf, K), gfs (n, Pf), Haa (g, K, K) and ga (g, K)
-    those of their groups, mu (g,) the groups' damping, which the shared coefficients get
-    times their diagonal (+1e-9, as the frames' blocks in Hd: Marquardt's damping of the whole
-    system); ``off`` the offsets' blocks or None. A group of one frame is solved whole, a
-    larger one by the Schur complement of its frames' blocks: the same step. With ``unit``, a
-    whole solve with blendshapes also returns ``unit`` (n, Pf + K, E), the system's inverse times
-    the blendshape weights' unit vectors (its columns of the inverse, from the same
-    factorisation: :func:`_fix_at_bound`); None otherwise."""
+def _whole_step(pb, H, gfs, ga, sel, unit: bool = False):
+    """The damped Gauss-Newton step of the frames ``sel``, each a group of one frame, solved
+    whole -> df (N, Pf), da (G, K), unit: H (n, P, P) their damped systems
+    (:attr:`NormalEquations.H`, Marquardt's damping on the whole diagonal), gfs (n, Pf) and
+    ga (n, K) their gradients. With ``unit`` and blendshapes, ``unit`` (n, P, E) is the
+    systems' inverse times the blendshape weights' unit vectors (its columns of the inverse,
+    from the same factorisation: :func:`_fix_at_bound`); None otherwise."""
+    N, G, E = pb.N, 1 if pb.shared else pb.N, pb.E
+    n, Pf = gfs.shape
+    P = H.shape[-1]
+    bounded = bool(unit and E)
+    rhs = np.zeros((n, P, 1 + E * bounded))
+    rhs[:, :Pf, 0], rhs[:, Pf:, 0] = gfs, ga
+    if bounded:
+        rhs[:, Pf - E:Pf, 1:] = np.eye(E)
+    x = np.linalg.solve(H, rhs)
+    df, da = np.zeros((N, Pf)), np.zeros((G, P - Pf))
+    df[sel], da[slice(None) if pb.shared else sel] = -x[:, :Pf, 0], -x[:, Pf:, 0]
+    return df, da, x[..., 1:] if bounded else None
+
+
+def _damped_step(pb, Hd, Hfs, gfs, Haa, ga, off, mu, sel):
+    """The damped Gauss-Newton step of the frames ``sel`` where they are not solved whole
+    (:func:`_whole_step`) -> df (N, Pf), da (G, K): Hd (n, Pf, Pf) their damped blocks, Hfs
+    (n, Pf, K), gfs (n, Pf), and Haa (g, K, K) and ga (g, K) those of their groups, mu (g,)
+    the groups' damping, which the shared coefficients get times their diagonal (+1e-9, as the
+    frames' blocks in Hd: Marquardt's damping of the whole system); ``off`` the offsets' blocks
+    or None. A shared identity of several frames is solved by the Schur complement of its
+    frames' blocks, one without shared coefficients frame by frame."""
     if off is not None:
-        return damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0]) + (None,)
-    N, G, K, E = pb.N, 1 if pb.shared else pb.N, pb.K, pb.E
+        return damped_step(Hd, Hfs, gfs, Haa, ga, off, mu[0])
+    N, G, K = pb.N, 1 if pb.shared else pb.N, pb.K
     Pf = Hd.shape[-1]
     df, da = np.zeros((N, Pf)), np.zeros((G, K))
     gs = slice(None) if pb.shared else sel
     if not K:
         df[sel] = -np.linalg.solve(Hd, gfs[..., None])[..., 0]
-        return df, da, None
-    if N == 1 or not pb.shared:
-        n, P = len(Hd), Pf + K
-        H = np.empty((n, P, P))
-        H[:, :Pf, :Pf], H[:, :Pf, Pf:], H[:, Pf:, :Pf], H[:, Pf:, Pf:] = (
-            Hd, Hfs, Hfs.transpose(0, 2, 1), Haa)
-        _damp(H[:, Pf:, Pf:], mu)
-        bounded = bool(unit and E)
-        rhs = np.zeros((n, P, 1 + E * bounded))
-        rhs[:, :Pf, 0], rhs[:, Pf:, 0] = gfs, ga
-        if bounded:
-            rhs[:, Pf - E:Pf, 1:] = np.eye(E)
-        x = np.linalg.solve(H, rhs)
-        df[sel], da[gs] = -x[:, :Pf, 0], -x[:, Pf:, 0]
-        return df, da, x[..., 1:] if bounded else None
+        return df, da
     Had = Haa.copy()
     _damp(Had, mu)
     sol = np.linalg.solve(Hd, np.concatenate([Hfs, gfs[..., None]], -1))
@@ -185,7 +204,7 @@ def _damped_step(pb, Hd, Hfs, gfs, Haa, ga, off, mu, sel, unit: bool = False):
     ba = ga - group_sum(pb, (x2[:, None, :] @ Hfs)[:, 0])
     da[gs] = -np.linalg.solve(Sa, ba[..., None])[..., 0]
     df[sel] = -(x2 + (X1 @ da[group_index(pb)[sel]][..., None])[..., 0])
-    return df, da, None
+    return df, da
 
 
 def _damp(H, mu):
@@ -238,22 +257,48 @@ def _to_bound(pb, beta, df, Hd, Hfs, gfs, ga, off):
     return Hd, Hfs, gfs, ga, off
 
 
-def normal_equations(pb: Problem, st: State):
-    """Gauss-Newton blocks at the current state, priors included: per frame Hff (N, Pf, Pf)
-    and gf over rotation, translation, scale (affine) and expressions; Hfa (N, Pf, K) to the
-    shared coefficients; Haa (G, K, K) and ga over them; the data weights W (N, L), the group
-    costs (G,), the expression bound's active set (N, Pf), and the landmark offsets' blocks
-    (:class:`~morphable.fitting.offsets.OffsetBlocks`; None without offsets, else Hfa, Haa and
-    ga are the identity's only) and the weighted Jacobian rows (WJf (N, 2 L, Pf), WJa (N,
-    2 L, K))."""
-    N, E = pb.N, pb.E
+class NormalEquations(NamedTuple):
+    """The Gauss-Newton blocks at a state, priors included (:func:`normal_equations`).
+
+    ``H`` (N, P, P) holds each frame's system over its parameters (rotation, translation,
+    scale (affine) and expressions: Pf) and the shared coefficients (K), whose block is that
+    frame's only; where each frame is its own group (one frame, or independent identities) it
+    is the whole system, priors included. ``Hff`` (N, Pf, Pf) and ``Hfa`` (N, Pf, K) are
+    views of it, ``Haa`` (G, K, K) the groups' shared block (a view of H where it is the
+    whole system); gf (N, Pf), ga (G, K) the gradient; W (N, L) the data weights; ``act``
+    (N, Pf) the expression bound's active set; ``cost`` (G,); ``off`` the landmark offsets'
+    blocks (:class:`~morphable.fitting.offsets.OffsetBlocks`; None without offsets, else the
+    shared coefficients here are the identity's only); ``rows`` = (Q (N, 2 L, P), s (N, 2 L,
+    1)) the Jacobian rows times the square roots ``s`` of their weights."""
+    H: np.ndarray
+    Hff: np.ndarray
+    Hfa: np.ndarray
+    Haa: np.ndarray
+    gf: np.ndarray
+    ga: np.ndarray
+    W: np.ndarray
+    act: np.ndarray
+    cost: np.ndarray
+    off: object
+    rows: tuple
+
+
+def _frame_params(pb):
+    """(n_t, n_rho, Pf): translations, log-scales and all parameters of a frame."""
     n_t, n_rho = (3, 0) if pb.perspective else (2, 1)
-    Pf = 3 + n_t + n_rho + E
+    return n_t, n_rho, 3 + n_t + n_rho + pb.E
+
+
+def normal_equations(pb: Problem, st: State) -> NormalEquations:
+    """The Gauss-Newton blocks at the current state, priors included
+    (:class:`NormalEquations`)."""
+    N, E = pb.N, pb.E
+    n_t, n_rho, Pf = _frame_params(pb)
     X, uv, Xc, Jp, depth, r = residuals(pb, st, True)
     W = _robust(pb, weights(pb, st, depth), r)
     cost0 = _group_cost(pb, st, _data_cost(pb, st, W, r, depth))
     # Jacobian rows coordinate-major: the L x residuals, then the L y residuals
-    L2 = 2 * r.shape[1]
+    L = r.shape[1]
     RX = Xc - st.t[:, None]
     blocks = [cross(RX[:, :, None, :], Jp), Jp[..., :n_t]]
     if n_rho:
@@ -263,45 +308,58 @@ def normal_equations(pb: Problem, st: State):
     JpR = Jp[:, 0] @ st.R if not pb.perspective else Jp @ st.R[:, None]
     if E:
         blocks.append(project_rows(JpR, st.rows[2]))
-    Jf4 = _across_rows(pb, np.concatenate(blocks, -1))                  # (N, 2, L, Pf)
-    Jf = Jf4.reshape(N, L2, Pf)
     S = shared_rows(pb, st)                                         # (N, 3, L, K)
-    Ja4 = _across_rows(pb, project_rows(JpR, S))                    # (N, 2, L, K)
-    K = Ja4.shape[-1]
-    Ja = Ja4.reshape(N, L2, K)
-    off = offset_normal(pb, st, JpR, W, r, Jf4, S[0]) if pb.D else None
-    WJf, WJa = weighted_rows(W, Jf4), weighted_rows(W, Ja4)
-    gf, ga, act = _gradient(pb, st, (WJf, WJa), r)
-    Hff = Jf.transpose(0, 2, 1) @ WJf
-    if E:
-        ie = np.arange(3 + n_t + n_rho, Pf)             # the expressions' diagonal
-        Hff[:, ie, ie] += pb.expression_weight
-    Hfa = Jf.transpose(0, 2, 1) @ WJa
+    blocks.append(project_rows(JpR, S))
+    J4 = _across_rows(pb, np.concatenate(blocks, -1))               # (N, 2, L, P)
+    P = J4.shape[-1]
+    K = P - Pf
+    off = offset_normal(pb, st, JpR, W, r, J4[..., :Pf], S[0]) if pb.D else None
+    # the rows times the square roots of their weights: the Hessian is their Gram matrix, one
+    # symmetric product (half the arithmetic of a general one)
+    Q, sw = weighted_rows(W, J4)                                    # (N, 2 L, P)
+    gf, ga, act = _gradient(pb, st, (Q, sw), r)
+    Qt = Q.transpose(0, 2, 1)
+    if pb.gram is None or JpR.ndim != 3:
+        H = Qt @ Q
+    else:
+        # the shared block from the fixed landmarks' Gram blocks (linear.gram_hessian)
+        H = np.empty((N, P, P))
+        H[:, :Pf] = Qt[:, :Pf] @ Q
+        H[:, Pf:, :Pf] = H[:, :Pf, Pf:].transpose(0, 2, 1)
+        shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
+        H[:, Pf:, Pf:] = gram_hessian(JpR, W, Q[..., Pf:].reshape(N, 2, L, K), pb.gram, shift)
+    diag = np.einsum("nii->ni", H)                  # a view
+    diag[:, Pf - E:Pf] += pb.expression_weight
     if act.any():
-        keep = ~act
-        Hff = np.where(keep[:, :, None] & keep[:, None, :], Hff, 0.0) + act[:, :, None] * np.eye(Pf)
-        Hfa = np.where(keep[:, :, None], Hfa, 0.0)
+        # the held weights' rows and columns become the identity's (in place)
+        held = np.zeros((N, P), bool)
+        held[:, :Pf] = act
+        H[held] = 0.0
+        H.transpose(0, 2, 1)[held] = 0.0
+        diag[held] = 1.0
         if off is not None:
-            frames = np.where(keep.reshape(-1), off.C[..., :N * Pf], 0.0)
+            frames = np.where(~act.reshape(-1), off.C[..., :N * Pf], 0.0)
             off = off._replace(C=np.concatenate([frames, off.C[..., N * Pf:]], -1))
-    shift = (offsets(pb, st.alpha)[0], pb.size_direction) if pb.D else None
-    Haa = group_sum(pb, gram_hessian(JpR, W, Ja4, WJa, pb.gram, shift))
-    ia = np.arange(K)
-    Haa[:, ia, ia] += pb.prior[:K]
-    return Hff, gf, Hfa, Haa, ga, W, act, cost0, off, (WJf, WJa)
+    # each frame its own group: its shared block is the group's (a view: the prior goes
+    # into H, which is then the whole system)
+    Haa = H[:, Pf:, Pf:] if not pb.shared or N == 1 else H[:, Pf:, Pf:].sum(0, keepdims=True)
+    np.einsum("nii->ni", Haa)[:] += pb.prior[:K]
+    return NormalEquations(H, H[:, :Pf, :Pf], H[:, :Pf, Pf:], Haa, gf, ga, W, act, cost0, off,
+                           (Q, sw))
 
 
-def _gradient(pb, st, WJ, r):
+def _gradient(pb, st, rows, r):
     """The cost's gradient (in the Gauss-Newton scale of the normal equations) at ``st``,
-    priors included, from the weighted Jacobian rows ``WJ`` = (WJf (N, 2 L, Pf), WJa (N, 2 L,
-    K)) and the residuals ``r`` (N, L, 2) px -> gf (N, Pf), ga (G, K), and the expression
-    bound's active set act (N, Pf): the blendshape weights held at 0 whose gradient would
-    take them below (their gf is 0: they leave the step, projected Newton)."""
-    WJf, WJa = WJ
-    E = pb.E
+    priors included, from the weighted Jacobian rows ``rows`` = (Q (N, 2 L, P), s (N, 2 L, 1):
+    :attr:`NormalEquations.rows`) and the residuals ``r`` (N, L, 2) px -> gf (N, Pf), ga (G,
+    K), and the expression bound's active set act (N, Pf): the blendshape weights held at 0
+    whose gradient would take them below (their gf is 0: they leave the step, projected
+    Newton)."""
+    Q, sw = rows
+    E, Pf = pb.E, _frame_params(pb)[2]
     rr = r.transpose(0, 2, 1).reshape(len(r), -1, 1)
-    gf = (WJf.transpose(0, 2, 1) @ rr)[..., 0]
-    ga = group_sum(pb, (WJa.transpose(0, 2, 1) @ rr)[..., 0])
+    g = (Q.transpose(0, 2, 1) @ (sw * rr))[..., 0]
+    gf, ga = g[:, :Pf], group_sum(pb, g[:, Pf:])
     act = np.zeros(gf.shape, bool)
     if E:
         gf[:, -E:] += pb.expression_weight * st.beta

@@ -8,6 +8,7 @@ a setting for them (:meth:`FitOptions.frame_model_std`, :meth:`FitOptions.modes`
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +17,15 @@ from ..errors import InputError
 from .noise import MODEL_STD_MM
 
 __all__ = ["FitOptions"]
+
+
+def _finite_nonnegative(v) -> bool:
+    # a plain number is checked without numpy: the defaults are numbers, and a fit's options
+    # are made for every fit
+    if isinstance(v, (int, float)):
+        return math.isfinite(v) and v >= 0
+    a = np.asarray(v)
+    return bool(np.isfinite(a).all() and (a >= 0).all())
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,11 +74,10 @@ class FitOptions:
                         ("definition_std_mm",
                          0.0 if definition_std_mm is None else definition_std_mm),
                         ("huber_k", self.huber_k)):
-            a = np.asarray(v)
-            if not (np.isfinite(a).all() and (a >= 0).all()):
+            if not _finite_nonnegative(v):
                 raise InputError(f"{name}: must be finite and >= 0, got {v}")
         model_std_mm = np.asarray(self.model_std_mm, dtype=np.float64)
-        if not auto and self.landmark_std_px == 0 and np.any(model_std_mm == 0):
+        if not auto and self.landmark_std_px == 0 and (model_std_mm == 0).any():
             raise InputError("landmark_std_px and model_std_mm cannot both be 0")
         if self.focal_px is not None:
             focal = np.asarray(self.focal_px, dtype=np.float64)

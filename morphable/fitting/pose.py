@@ -23,7 +23,7 @@ _IMAGE_AXES = np.array([1.0, -1.0])      # camera x, y -> image x right, y down
 def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = True):
     """Scaled orthographic pose from 2D-3D correspondences (linear, eos / Hartley-Zisserman).
 
-    A 2x4 affine camera is fitted by weighted least squares on normalised coordinates, then
+    A 2x4 affine camera is fitted by weighted least squares on centred coordinates, then
     its 2x3 part is replaced by the nearest scaled rotation.
 
     Parameters
@@ -51,34 +51,28 @@ def estimate_affine_pose(points3d, points2d, weights, principal, check: bool = T
     if (n_used < 4).any():
         f = int(np.argmax(n_used < 4))
         raise FitError(f"frame {f}: {int(n_used[f])} usable landmarks, need at least 4 for a pose")
-    wsum = w.sum(1, keepdims=True)
-    # normalise both point sets (centroid 0, unit RMS radius) for conditioning
-    mx = (w[..., None] * X).sum(1, keepdims=True) / wsum[..., None]
-    my = (w[..., None] * y).sum(1, keepdims=True) / wsum[..., None]
-    Xc, yc = X - mx, y - my
-    sx = np.sqrt((w * (Xc ** 2).sum(-1)).sum(1) / wsum[:, 0])
-    sy = np.sqrt((w * (yc ** 2).sum(-1)).sum(1) / wsum[:, 0])
+    wsum = w.sum(1)[:, None]
+    mx = (w[..., None] * X).sum(1) / wsum                                  # (N, 3) centroids
+    my = (w[..., None] * y).sum(1) / wsum                                  # (N, 2)
+    Xc, yc = X - mx[:, None], y - my[:, None]
+    # the weighted covariances: centred, the affine camera's translation is zero and y = M X
+    # is solved for M (2x3) from them (a normalisation of either point set cancels in M)
+    wX = (w[..., None] * Xc).transpose(0, 2, 1)
+    Cxx, Cxy = wX @ Xc, wX @ yc
     if check:
-        _check_spread(yc, w, sy, "image")
-        _check_spread(Xc, w, sx, "model")
-    Xn = Xc / sx[:, None, None]
-    yn = yc / sy[:, None, None]
-    # centred data: the translation of the affine camera is zero, solve y = M X for M (2x3)
-    wX = (w[..., None] * Xn).transpose(0, 2, 1)
-    G, rhs = wX @ Xn, wX @ yn
+        _check_spread((w[..., None] * yc).transpose(0, 2, 1) @ yc, "image")
+        _check_spread(Cxx, "model")
     # coplanar model points (few landmarks) leave depth free: a tiny ridge keeps it defined
-    G = G + 1e-9 * np.einsum("nii->n", G)[:, None, None] * np.eye(3)
-    M = np.linalg.solve(G, rhs).transpose(0, 2, 1) * (sy / sx)[:, None, None]     # (N, 2, 3)
-    M[:, 1] *= -1                    # image y down -> camera y up
+    d = np.einsum("nii->ni", Cxx)                                   # a view of the diagonal
+    d += 1e-9 * d.sum(1, keepdims=True)
+    M = np.linalg.solve(Cxx, Cxy).transpose(0, 2, 1) * _IMAGE_AXES[:, None]  # camera y up
     r12, scale = _nearest_scaled_rotation(M)
     R = np.concatenate([r12, cross(r12[:, 0], r12[:, 1])[:, None]], axis=1)
-    if not np.all(np.isfinite(R)) or not np.all(scale > 0):
+    if not (np.isfinite(R).all() and (scale > 0).all()):
         raise FitError("the affine pose estimate is degenerate (landmarks collinear?)")
-    # translation that maps the weighted centroids onto each other
-    c = my[:, 0] - principal
+    # the translation that maps the weighted centroids onto each other
     t = np.zeros((len(X), 3))
-    t[:, 0] = c[:, 0] / scale - (R[:, 0] * mx[:, 0]).sum(-1)
-    t[:, 1] = -c[:, 1] / scale - (R[:, 1] * mx[:, 0]).sum(-1)
+    t[:, :2] = (my - principal) * _IMAGE_AXES / scale[:, None] - (r12 @ mx[..., None])[..., 0]
     return R, t, scale
 
 
@@ -95,15 +89,14 @@ def _nearest_scaled_rotation(M):
     return ((tr + d)[:, None, None] * M - A @ M) / (d * s)[:, None, None], s / 2
 
 
-def _check_spread(centred, w, rms, what):
+def _check_spread(cov, what):
     # the second principal spread must not vanish relative to the whole: the second invariant
-    # of the covariance (the sum of its eigenvalues' pairwise products; for 2D its determinant)
-    # against its squared trace, which brackets the eigenvalue ratio within a factor 9 and
-    # needs no eigen-decomposition
-    cov = (w[..., None] * centred).transpose(0, 2, 1) @ centred
+    # of the weighted covariance cov (N, d, d) (the sum of its eigenvalues' pairwise products;
+    # for 2D its determinant) against its squared trace, which brackets the eigenvalue ratio
+    # within a factor 9 and needs no eigen-decomposition (no spread, NaN or inf: not above)
     tr = np.einsum("nii->n", cov)
     i2 = (tr ** 2 - (cov * cov).sum((1, 2))) / 2
-    bad = ~(i2 > 1e-8 * tr ** 2) | ~(rms > 0) | ~np.isfinite(rms)
+    bad = ~(i2 > 1e-8 * tr ** 2)
     if bad.any():
         f = int(np.argmax(bad))
         raise FitError(f"frame {f}: the {what} landmark points are coincident or collinear")

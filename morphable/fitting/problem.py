@@ -88,12 +88,9 @@ class Problem:
         definition_std_mm = options.landmark_definition_std(bank.scheme)
         self.offsets = bool(self.shared and self.N > 1 and np.any(definition_std_mm > 0))
         self.n_identity = K
-        sliding = [int(j) for lms, _ in bank.polylines for j in lms]
-        self.sliding_landmarks = np.asarray(sliding, dtype=np.int64)
+        self.sliding_landmarks = bank.sliding_landmarks
         # sliding outline points are defined by the outline they slide on: no offset
-        offset = np.ones(y.shape[1], bool)
-        offset[sliding] = False
-        self.offset_landmarks = np.flatnonzero(offset)
+        self.offset_landmarks = bank.fixed_landmarks
         self.D = 3 * len(self.offset_landmarks) if self.offsets else 0
         self.frame_def_std = np.zeros_like(definition_std_mm) if self.offsets else definition_std_mm
         self.definition_std_mm = definition_std_mm
@@ -102,27 +99,19 @@ class Problem:
         self.model_var_mm2 = model_std_mm[:, None] ** 2 + self.frame_def_std ** 2
         # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
         self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
-        self.prior = np.concatenate([np.full(K, self.prior_weight), np.ones(self.D)])
+        self.prior = np.ones(K + self.D)
+        self.prior[:K] = self.prior_weight
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
-        slides = bool(sliding) and bool(mask[:, sliding].any())
-        self.sliding = _sliding_columns(sliding, bank.scheme.chin) if slides else None
+        slides = len(self.sliding_landmarks) and mask[:, self.sliding_landmarks].any()
+        self.sliding = bank.sliding_columns if slides else None
         # the Gram fast path needs one weight for each group of fixed landmarks of a frame
         # (those of one definition error): never so with the Huber loss
         self.gram = (fixed_gram(bank, K, self.sliding, self.frame_def_std)
                      if self.robust is None and K else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
-
-
-def _sliding_columns(sliding, chin):
-    # one slice over the jaw, the chin inside it re-gathered unchanged: slices copy much
-    # faster than index lists into the (N, 3, L, K) rows
-    lo, hi = min(sliding), max(sliding) + 1
-    if set(range(lo, hi)) <= set(sliding) | {chin}:
-        return slice(lo, hi)
-    return np.asarray(sorted(sliding), dtype=np.int64)
 
 
 class State:

@@ -144,16 +144,17 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
     (:func:`~morphable.fitting.rows.residuals`). FitError for a non-finite fit, or a pinhole
     fit with landmarks behind the camera."""
     used = pb.mask & st.corr.defined
-    d2 = (r ** 2).sum(-1)
-    rmse = np.sqrt(np.where(used, d2, 0.0).sum(1) / np.maximum(used.sum(1), 1))
+    cost = np.where(used, (r ** 2).sum(-1), 0.0).sum(1)
+    rmse = np.sqrt(cost / np.maximum(used.sum(1), 1))
     parts = (st.R, st.t, st.k, st.alpha, st.beta, rmse)
     if not np.isfinite(np.concatenate([a.ravel() for a in parts])).all():
         raise FitError("the fit did not converge to finite values (degenerate landmarks?)")
     if pb.perspective and np.any(used & ~(depth > 0)):
         raise FitError("the perspective fit put landmarks behind the camera")
     cams = []
+    sizes = np.rint(pb.size).astype(int).tolist()
     for i in range(pb.N):
-        W_, H_ = (int(round(v)) for v in pb.size[i])
+        W_, H_ = sizes[i]
         t = st.t[i].copy()
         if not pb.perspective:
             t[2] = -AFFINE_DISTANCE_MM
@@ -162,7 +163,7 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                            focal=float(st.k[i]) if pb.perspective else 1.0,
                            image_size=(W_, H_), principal=pb.principal[i]))
     K, y = pb.n_identity, pb.y_obs
-    frame_alpha = np.broadcast_to(st.alpha[:, :K], (pb.N, K)).copy()
+    frame_alpha = st.alpha[:, :K].repeat(pb.N // len(st.alpha), 0)          # (N, K)
     # outline points: the foot of the landmark on the fitted outline (the target moved along it)
     fitted = np.where(used[..., None], y + r, np.nan)
     return FitResult(model=pb.model, identity=frame_alpha.mean(0), frame_identity=frame_alpha,
@@ -170,6 +171,6 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                      landmarks=np.where(pb.given[..., None], y, np.nan), fitted_landmarks=fitted,
                      landmark_vertices=np.where(used, st.corr.vertex_ids(pb.bank), -1),
                      shared_identity=bool(pb.shared), iterations=iterations,
-                     cost=(np.where(used, d2, 0.0)).sum(1), dtype=pb.options.dtype,
-                     landmark_std_px=np.broadcast_to(pb.landmark_std_px, (pb.N,)).astype(np.float64),
+                     cost=cost, dtype=pb.options.dtype,
+                     landmark_std_px=np.zeros(pb.N) + pb.landmark_std_px,
                      model_std_mm=pb.model_std_mm.astype(np.float64))

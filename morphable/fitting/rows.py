@@ -82,6 +82,8 @@ def fixed_gram(bank, K, sliding, std):
     scheme, K and groups; landmarks in neither never have a correspondence. None for fewer
     than :data:`MIN_GRAM_LANDMARKS` fixed landmarks or more than :data:`MAX_GRAM_GROUPS`
     groups."""
+    if np.count_nonzero(bank.fixed_row >= 0) < MIN_GRAM_LANDMARKS:     # too few in any case
+        return None
     cache = _GRAMS.setdefault(bank, {})
     sliding = sliding if sliding is not None else slice(0, 0)
     moving = np.arange(len(bank.fixed_row))[sliding]
