@@ -365,7 +365,7 @@ def _gradient(pb, st, rows, r):
         gf[:, -E:] += pb.expression_weight * st.beta
         if pb.nonneg:
             act[:, -E:] = (st.beta <= 0) & (gf[:, -E:] > 0)
-            gf = np.where(act, 0.0, gf)
+            gf[act] = 0.0
     K = ga.shape[-1]
     return gf, ga + pb.prior[:K] * st.alpha[:, :K], act
 

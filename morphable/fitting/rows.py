@@ -147,13 +147,19 @@ def fixed_rows(pb, n_frames: int):
     """The mean (N, L, 3) and the identity and expression rows (N, 3, L, K|E) at the bank's
     fixed correspondences (:meth:`~morphable.fitting.correspondences.Correspondences.fixed`;
     0 for landmarks without one), where a fit starts: copies of rows gathered once per model,
-    scheme and modes (gathering them was a twentieth of a 51-point fit's time)."""
+    scheme and modes (gathering them was a twentieth of a 51-point fit's time). Where nothing
+    slides (``pb.sliding`` None) the rows never change: read-only views of the cached rows."""
     cache = _BASIS_ROWS.setdefault(pb.bank, {})
     key = ("fixed", pb.AT.shape[-1], pb.BT.shape[-1])
     if key not in cache:
         c = Correspondences.fixed(pb.bank, 1)
         cache[key] = (c.gather_static(pb.bank.mean), c.gather_coordinates(pb.AT),
                       c.gather_coordinates(pb.BT))
+        for x in cache[key]:
+            x.flags.writeable = False
+    if pb.sliding is None:
+        return tuple(x if n_frames == 1 else np.broadcast_to(x, (n_frames,) + x.shape[1:])
+                     for x in cache[key])
     return tuple(np.repeat(x, n_frames, 0) for x in cache[key])
 
 
