@@ -341,6 +341,26 @@ def test_ours_beats_eos_and_mean_face_on_ict_subjects(ict, sfm):
     assert cell["mean_mm"] == pytest.approx(np.mean(cell["per_scan_mm"]), abs=1e-3)
 
 
+def test_synthetic_subjects_over_several_video_draws(ict, sfm):
+    # each subject's videos drawn twice: a subject's value is its mean over the draws, and
+    # the spread over draws is kept beside the spread over subjects
+    from evaluation.florence.protocol import format_table, run_model_scans
+
+    report = run_model_scans(ict, sfm, ["ours", "mean-face"], ["outdoor"], n_scans=2,
+                             n_videos=2, n_sampled=2, n_frames=4)
+    ours = report["methods"]["ours"]["outdoor"]
+    per = np.array(ours["per_video_mm"])
+    assert per.shape == (2, 2) and per[0, 0] != per[0, 1]      # other draws, other fits
+    np.testing.assert_allclose(ours["per_scan_mm"], per.mean(1), atol=1e-3)
+    assert ours["draw_std_mm"] == pytest.approx(per.std(1).mean(), abs=1e-3)
+    assert ours["std_mm"] == pytest.approx(np.std(ours["per_scan_mm"]), abs=1e-3)
+    mean = report["methods"]["mean-face"]["outdoor"]
+    assert mean["draw_std_mm"] == pytest.approx(0.0, abs=1e-9)  # no fit: every draw the same
+    assert mean["std_mm"] > 0                                   # but other subjects
+    assert report["videos_drawn"]["seeds"] == [0, 1]
+    assert "std over subjects, each the mean of 2 video draws" in format_table(report)
+
+
 def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
     from evaluation.florence.methods import Frames, prepare_methods, reconstruct_video
     from evaluation.florence.protocol import video_landmarks
@@ -512,7 +532,7 @@ def test_command_on_several_video_draws(tmp_path, james_paths):
     assert ours["mean_mm"] == pytest.approx(np.mean(ours["per_video_mm"]), abs=1e-3)
     assert mean["std_mm"] == pytest.approx(0.0, abs=1e-9)       # no fit: every draw the same
     assert (tmp_path / "r_errors.npz").exists()
-    r = run_cli("--synthetic-scan", "ict", "--n-videos", "2", "--report", tmp_path / "s.json")
+    r = run_cli("--synthetic-scan", "ict", "--n-videos", "0", "--report", tmp_path / "s.json")
     assert r.returncode == 2 and "--n-videos" in r.stderr and not (tmp_path / "s.json").exists()
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--n-videos", "0",
                 "--report", tmp_path / "z.json")

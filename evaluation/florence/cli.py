@@ -58,9 +58,10 @@ def _parser():
     p.add_argument("--model", default="sfm", help="model for ours/mean-face (sfm, ict or a path)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-videos", type=int, default=1,
-                   help="--scan: draws of each synthetic video (seeds --seed, --seed + 1...); "
-                        "the table then gives mean ± std over the draws (per-vertex errors "
-                        "and heat maps: the first draw)")
+                   help="draws of each synthetic video (seeds --seed, --seed + 1...); with "
+                        "--scan the table then gives mean ± std over the draws (per-vertex "
+                        "errors and heat maps: the first draw), with --synthetic-scan each "
+                        "subject's mean over its draws (draw_std_mm in the report: the spread)")
     p.add_argument("--detect", action="store_true",
                    help="landmarks detected on rendered frames (--landmark-detector, --face-detector) "
                         "instead of projected scan landmarks")
@@ -134,9 +135,6 @@ def main(argv=None) -> int:
         for bad in ("frames_dir", "heatmaps"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
-        if args.n_videos != 1:
-            raise InputError("--n-videos applies to --scan "
-                             "(--synthetic-scan: one video per subject)")
         if args.appearance and not (args.detect or "gar" in args.methods):
             raise InputError("--appearance colours rendered frames: use it with --detect or "
                              "the gar method")
@@ -172,7 +170,8 @@ def main(argv=None) -> int:
                                      args.n_scans, args.seed, definition_mm=args.definition_noise,
                                      expression_std=args.expression_std,
                                      appearances=looks, n_sampled=args.frames, detect=detect,
-                                     n_frames=args.video_frames, **common)
+                                     n_frames=args.video_frames, n_videos=args.n_videos,
+                                     **common)
         elif args.n_videos != 1:
             if args.frames_dir:
                 raise InputError("--n-videos draws synthetic videos; --frames-dir has one")

@@ -297,29 +297,37 @@ AVERAGED = ("mean_mm", "median_mm", "s_per_frame", "point_to_surface_mm", "scan_
 def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, seed: int = 0,
                     scan_seed: int = 100, log=None, progress: bool = False,
                     definition_mm: float = 0.0, expression_std: float = 0.0, appearances=(),
-                    **kwargs):
+                    n_videos: int = 1, **kwargs):
     """:func:`run_protocol` on ``n_scans`` subjects sampled from ``scan_model``
     (:func:`evaluation.scans.model_scan` with seeds ``scan_seed``, ``scan_seed + 1``...,
     ``definition_mm`` of landmark definition error added to their landmarks, expressions of
     ``expression_std`` — 0: neutral); ``appearances``:
     (name, (V, 3) vertex colours) pairs, :func:`evaluation.scans.photo_colors`, worn in turn
-    by the subjects in rendered frames).
+    by the subjects in rendered frames); ``n_videos`` draws of each subject's videos
+    (:func:`run_videos`, seeds ``seed``...; 1: one video per condition).
 
     Returns
     -------
     report : the :func:`run_protocol` shape; each cell holds the means over the subjects of
-        ``mean_mm``, ``median_mm``, ``s_per_frame`` and the other metrics, ``std_mm`` the
-        standard deviation of ``mean_mm`` across subjects, ``per_scan_mm`` the list, and
-        ``n_failed``; ``scan`` describes the sampled set
+        ``mean_mm``, ``median_mm``, ``s_per_frame`` and the other metrics (with ``n_videos`` > 1
+        each subject's value is its mean over the draws), ``std_mm`` the standard deviation of
+        ``mean_mm`` across subjects, ``per_scan_mm`` the list, ``n_failed`` (subjects whose
+        every draw failed) and, with draws, ``draw_std_mm`` (the mean over subjects of the
+        standard deviation across a subject's draws) and ``per_video_mm`` (a list per subject);
+        ``scan`` describes the sampled set
     """
     if n_scans < 1:
         raise InputError(f"--n-scans: need at least 1 subject, got {n_scans}")
+    if n_videos < 1:
+        raise InputError(f"--n-videos: need at least 1 video, got {n_videos}")
     appearances = list(appearances)
     scans = (model_scan(scan_model, scan_seed + i, definition_mm=definition_mm,
                         expression_std=expression_std,
                         colors=appearances[i % len(appearances)][1] if appearances else None)
              for i in range(n_scans))
     runs = (run_protocol(scan, model, methods, conditions, seed=seed, **kwargs)[0]
+            if n_videos == 1 else
+            run_videos(scan, model, methods, conditions, n_videos, seed, **kwargs)[0]
             for scan in scans)
     report = _average_runs(runs, n_scans, "per_scan_mm", "subject", log, progress)
     report["scan"] = {"model": scan_model.name, "n_scans": n_scans,
@@ -330,6 +338,10 @@ def run_model_scans(scan_model, model, methods, conditions, n_scans: int = 8, se
                       "appearance": ([f"vertex colours of {name}" for name, _ in appearances]
                                      or "untextured (shaded grey)"),
                       "std_mm": "standard deviation of the per-subject means"}
+    if n_videos > 1:
+        report["videos_drawn"] = {
+            "n_videos": n_videos, "seeds": [seed + i for i in range(n_videos)],
+            "draw_std_mm": "mean over subjects of the standard deviation across their draws"}
     return report
 
 
@@ -391,6 +403,10 @@ def _average_runs(reports, n: int, key: str, unit: str, log=None, progress: bool
             cell = {k: float(np.mean([x[k] for x in ok])) for k in AVERAGED}
             cell["std_mm"] = float(np.std([x["mean_mm"] for x in ok]))
             cell[key] = [round(x["mean_mm"], 4) for x in ok]
+            if all("per_video_mm" in x for x in ok):
+                # the runs averaged draws themselves (subjects of run_videos): keep their spread
+                cell["draw_std_mm"] = float(np.mean([x["std_mm"] for x in ok]))
+                cell["per_video_mm"] = [x["per_video_mm"] for x in ok]
             cell["n_failed"] = len(runs) - len(ok)
             report["methods"][m][c] = cell
     for c, errs in detector.items():
@@ -412,8 +428,10 @@ def format_table(report: dict) -> str:
     conds = list(next(iter(report["methods"].values()), {}))
     w = 16
     head = f"{'method':<18}" + "".join(f"{c:>{w}}" for c in conds) + f"{'s/frame':>10}"
-    over = ("subjects" if "n_scans" in report.get("scan", {})
-            else "videos" if "videos_drawn" in report else "vertices")
+    drawn = report.get("videos_drawn", {}).get("n_videos")
+    over = ("subjects" + (f", each the mean of {drawn} video draws" if drawn else "")
+            if "n_scans" in report.get("scan", {})
+            else "videos" if drawn else "vertices")
     lines = [f"point-to-plane error, mm (mean ± std over {over}); {report['settings']['frames']} "
              f"frames per video, model {report['settings']['model']}", head, "-" * len(head)]
     for m in methods:
