@@ -113,9 +113,9 @@ def landmark_rmse(model, rotation, project, verts, landmarks):
     y = np.where(given[:, None], landmarks, 0.0)[None]
     corr = Correspondences.fixed(bank, 1)
     uv_rows = project(verts[bank.vertex_ids])
-    outlines = outline_points(bank, np.asarray(rotation, dtype=np.float64)[None, 2])
-    projected = [((1 - w[..., None]) * uv_rows[a] + w[..., None] * uv_rows[b]) for a, b, w in outlines]
-    targets, tangents = (x[0] for x in slide_contours(bank, corr, outlines, projected, y, given[None]))
+    outline = a, b, w = outline_points(bank, np.asarray(rotation, dtype=np.float64)[None, 2])
+    projected = (1 - w[..., None]) * uv_rows[a] + w[..., None] * uv_rows[b]
+    targets, tangents = (x[0] for x in slide_contours(bank, corr, outline, projected, y, given[None]))
     a, b, w = corr.a[0], corr.b[0], corr.w[0]
     ok = given & (a >= 0)
     uv = (1 - w[:, None]) * uv_rows[np.maximum(a, 0)] + w[:, None] * uv_rows[np.maximum(b, 0)]

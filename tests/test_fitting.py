@@ -650,8 +650,11 @@ def test_outline_points_count_only_across_the_outline(sfm, face, kind):
     assert sorted(j for lms, _ in bank.polylines for j in lms) == sorted(
         np.r_[scheme.outline_right, scheme.outline_left].tolist())
     along, across = lm.copy(), lm.copy()
-    for (lms, _), (a, b, w) in zip(bank.polylines, outline_points(bank, cam.rotation[None, 2])):
-        X = (1 - w[0, :, None]) * verts[bank.vertex_ids[a[0]]] + w[0, :, None] * verts[bank.vertex_ids[b[0]]]
+    a, b, w = (x[0] for x in outline_points(bank, cam.rotation[None, 2]))
+    ends = np.cumsum([0] + [len(o) for o in bank.outlines])
+    for (lms, _), lo, hi in zip(bank.polylines, ends[:-1], ends[1:]):
+        sel = slice(lo, hi)                             # this side's outline lines
+        X = (1 - w[sel, None]) * verts[bank.vertex_ids[a[sel]]] + w[sel, None] * verts[bank.vertex_ids[b[sel]]]
         uv = cam.project(X)                             # the outline, top to chin
         for j, k in zip(lms, np.linspace(2, len(uv) - 3, len(lms)).astype(int)):
             t = uv[k + 1] - uv[k - 1]

@@ -110,6 +110,31 @@ class LandmarkBank:
         fixed[self.sliding_landmarks] = False
         return _read_only(np.flatnonzero(fixed))
 
+    # the polylines' outlines side by side: one pass over all of them per slide, not one each
+    @cached_property
+    def outline_rows(self) -> np.ndarray:
+        """(T, M) int rows, -1 padded: every polyline's :attr:`outlines` in turn (T lines)."""
+        width = max((o.shape[1] for o in self.outlines), default=1)
+        return _read_only(np.concatenate(
+            [np.pad(o, ((0, 0), (0, width - o.shape[1])), constant_values=-1)
+             for o in self.outlines] or [np.zeros((0, width), np.int64)]))
+
+    @cached_property
+    def outline_normals(self) -> np.ndarray:
+        """(T, M, 3) the mean shape's normals at the :attr:`outline_rows` (padding: any)."""
+        return _read_only(self.normals[np.maximum(self.outline_rows, 0)])
+
+    @cached_property
+    def outline_segments(self) -> np.ndarray:
+        """(J, T - 1) bool: the segments between consecutive :attr:`outline_rows` lines that
+        lie on each :attr:`sliding_landmarks` landmark's own polyline."""
+        line_of = np.concatenate([np.full(len(o), i) for i, o in enumerate(self.outlines)]
+                                 or [np.zeros(0, int)])
+        own = np.concatenate([np.full(len(lms), i) for i, (lms, _) in enumerate(self.polylines)]
+                             or [np.zeros(0, int)])
+        within = line_of[:-1] == line_of[1:]
+        return _read_only((own[:, None] == line_of[None, :-1]) & within[None])
+
 
 def _read_only(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
@@ -391,22 +416,18 @@ def march_silhouette(lines, normals, view):
     last = valid.sum(-1) - 1                                       # (1, J)
     k = np.where(front.any(-1), np.argmax(front, -1), last)        # first facing vertex
     km = np.maximum(k - 1, 0)
-    n_idx, j_idx = np.ogrid[:nz.shape[0], :J]
+    n_idx, j_idx = np.arange(nz.shape[0])[:, None], np.arange(J)
     z1, z0 = nz[n_idx, j_idx, k], nz[n_idx, j_idx, km]
-    w = np.where(k > 0, np.clip(-z0 / np.maximum(z1 - z0, 1e-12), 0.0, 1.0), 0.0)
+    w = np.where(k > 0, np.minimum(np.maximum(-z0 / np.maximum(z1 - z0, 1e-12), 0.0), 1.0), 0.0)
     return lines[j_idx, km], lines[j_idx, k], w
 
 
-def outline_points(bank: LandmarkBank, view) -> list:
-    """Each side's outline in each frame: per polyline, ``(a, b, w)`` arrays (N, L) of bank
-    rows, the outline point of every outline line (:func:`march_silhouette` of
-    ``bank.outlines``). ``view``: (N, 3) camera z axes in model coordinates, or a list (one
-    per polyline) of (N, L, 3) directions towards a pinhole camera."""
-    out = []
-    for i, lines in enumerate(bank.outlines):
-        v = view[i] if isinstance(view, list) else view
-        out.append(march_silhouette(lines, bank.normals[np.maximum(lines, 0)], v))
-    return out
+def outline_points(bank: LandmarkBank, view) -> tuple:
+    """The outline point of every outline line of every polyline in each frame
+    (:func:`march_silhouette` of ``bank.outline_rows``): ``(a, b, w)`` arrays (N, T) of bank
+    rows, polyline by polyline. ``view``: (N, 3) camera z axes in model coordinates, or
+    (N, T, 3) directions from each line towards a pinhole camera."""
+    return march_silhouette(bank.outline_rows, bank.outline_normals, view)
 
 
 def across_outline(residuals, tangents):
@@ -415,45 +436,50 @@ def across_outline(residuals, tangents):
     return residuals - tangents * (residuals * tangents).sum(-1, keepdims=True)
 
 
-def slide_contours(bank: LandmarkBank, corr: Correspondences, outlines, projected, landmarks,
+def slide_contours(bank: LandmarkBank, corr: Correspondences, outline, projected, landmarks,
                    mask):
     """Re-pick the outline correspondences in place: each outline landmark takes the nearest point
     of its side's projected outline, and its target moves along the outline to that point.
 
     Parameters
     ----------
-    outlines : per polyline, ``(a, b, w)`` (N, M) from :func:`outline_points`, M outline lines
-    projected : per polyline, (N, M, 2) pixels, those outline points projected with the fit
+    outline : ``(a, b, w)`` (N, T) from :func:`outline_points`, T outline lines
+    projected : (N, T, 2) pixels, those outline points projected with the fit
     landmarks : (N, L, 2) pixels
     mask : (N, L) bool, given landmarks (others keep no correspondence)
 
     Returns
     -------
     targets : (N, L, 2) ``landmarks`` with each given outline point moved along the outline to
-        its outline point, the nearer end of the nearest outline segment (a correspondence
-        interpolates two rows; the lines are ``OUTLINE_STEP_MM`` apart)
+        its outline point, the nearer end of the nearest outline segment of its polyline (a
+        correspondence interpolates two rows; the lines are ``OUTLINE_STEP_MM`` apart)
     tangents : (N, L, 2) unit directions of those segments at the given outline points, 0
         elsewhere: a fit counts only the residual across them
     """
+    a, b, w = outline
+    lms = bank.sliding_landmarks
     targets = np.array(landmarks, dtype=np.float64, copy=True)
     tangents = np.zeros_like(targets)
-    for (lms, _), (a, b, w), uv in zip(bank.polylines, outlines, projected):
-        p0, d = uv[:, :-1], uv[:, 1:] - uv[:, :-1]       # (N, S, 2)
-        y = landmarks[:, lms]                           # (N, J, 2)
-        rel = y[:, :, None, :] - p0[:, None]            # (N, J, S, 2)
-        dd = np.einsum("nsk,nsk->ns", d, d)[:, None]
-        t = np.clip(np.einsum("njsk,nsk->njs", rel, d) / np.maximum(dd, 1e-12), 0.0, 1.0)
-        err = rel - t[..., None] * d[:, None]
-        seg = np.argmin(np.einsum("njsk,njsk->njs", err, err), axis=-1)   # (N, J)
-        n_idx, j_idx = np.ogrid[:len(seg), :len(lms)]
-        e = seg + (t[n_idx, j_idx, seg] > 0.5)
-        given = mask[:, lms]
-        corr.a[:, lms] = np.where(given, a[n_idx, e], -1)
-        corr.b[:, lms] = np.where(given, b[n_idx, e], -1)
-        corr.w[:, lms] = np.where(given, w[n_idx, e], 0.0)
-        tau = d[n_idx, seg]
-        tau = tau / np.maximum(np.linalg.norm(tau, axis=-1, keepdims=True), 1e-12)
-        along = np.einsum("njk,njk->nj", uv[n_idx, e] - y, tau)[..., None] * tau
-        targets[:, lms] = np.where(given[..., None], y + along, y)
-        tangents[:, lms] = np.where(given[..., None], tau, 0.0)
+    # x and y apart: (N, J, S) arrays whose inner loops run over the S segments, not over 2
+    ux, uy = projected[..., 0], projected[..., 1]                   # (N, T)
+    dx, dy = ux[:, 1:] - ux[:, :-1], uy[:, 1:] - uy[:, :-1]         # (N, S), S = T - 1
+    yx, yy = landmarks[:, lms, 0, None], landmarks[:, lms, 1, None]  # (N, J, 1)
+    rx, ry = yx - ux[:, None, :-1], yy - uy[:, None, :-1]           # (N, J, S)
+    dd = np.maximum(dx * dx + dy * dy, 1e-12)[:, None]
+    t = np.minimum(np.maximum((rx * dx[:, None] + ry * dy[:, None]) / dd, 0.0), 1.0)
+    ex, ey = rx - t * dx[:, None], ry - t * dy[:, None]
+    dist = np.where(bank.outline_segments, ex * ex + ey * ey, np.inf)
+    seg = np.argmin(dist, axis=-1)                                  # (N, J)
+    n_idx, j_idx = np.arange(len(seg))[:, None], np.arange(len(lms))
+    e = seg + (t[n_idx, j_idx, seg] > 0.5)
+    given = mask[:, lms]
+    corr.a[:, lms] = np.where(given, a[n_idx, e], -1)
+    corr.b[:, lms] = np.where(given, b[n_idx, e], -1)
+    corr.w[:, lms] = np.where(given, w[n_idx, e], 0.0)
+    tau = np.stack([dx[n_idx, seg], dy[n_idx, seg]], -1)           # (N, J, 2)
+    tau /= np.maximum(np.sqrt((tau * tau).sum(-1, keepdims=True)), 1e-12)
+    y = landmarks[:, lms]
+    along = ((projected[n_idx, e] - y) * tau).sum(-1, keepdims=True) * tau
+    targets[:, lms] = np.where(given[..., None], y + along, y)
+    tangents[:, lms] = np.where(given[..., None], tau, 0.0)
     return targets, tangents

@@ -8,7 +8,11 @@ ridge regression, solved here for many frames at once.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
+
+from .rows import GRAM_PAIRS
 
 __all__ = ["solve_identity", "solve_expression", "ridge_solve", "normal_blocks", "project_rows",
            "weighted_rows", "gram_hessian"]
@@ -58,7 +62,8 @@ def gram_hessian(P, W, Q, gram, shift=None):
     ``sum_g w_g sum_ij (P^T P)_ij G_gij`` with ``G_gij = sum_{l in g} A_l[i]^T A_l[j]``
     computed once per model: far fewer operations than the plain product. ``gram`` is
     :func:`~morphable.fitting.rows.fixed_gram`'s ``(fixed (F,), group (F,), first (g,),
-    moving, G (g, 3, 3, k, k), rows)``; frames that do not qualify (per-point projections,
+    moving, G (g 6, k (k + 1) / 2), rows)`` (packed: :class:`~morphable.fitting.rows.
+    FixedGram`); frames that do not qualify (per-point projections,
     missing or differently weighted fixed landmarks) fall back to the plain product.
     ``moving`` (indices or a slice) covers every other landmark that can have a weight.
     ``shift``: None, or ``(s (L, 3) mm, d (k,))`` where the rows of ``Phi`` are the Gram's rows
@@ -72,13 +77,16 @@ def gram_hessian(P, W, Q, gram, shift=None):
     fixed, group, first, moving, G, rows = gram
     wf = W[:, fixed]
     wg = wf[:, first]                                               # (N, g)
-    ok = np.all(wg > 0) and np.all(wf == wg[:, group])
-    if not ok:
+    if not ((wg > 0).all() and (wf == wg[:, group]).all()):
         flat = Q.reshape(N, 2 * L, k)
         return flat.transpose(0, 2, 1) @ flat
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
-    wM = (wg[:, :, None] * M.reshape(N, 1, 9)).reshape(N, -1)
-    H = (wM @ G.reshape(-1, k * k)).reshape(N, k, k)
+    wM = (wg[:, :, None] * M[:, _PAIR_I, _PAIR_J][:, None]).reshape(N, -1)
+    upper = wM @ G                                                  # (N, k (k + 1) / 2)
+    iu, ju = _upper_indices(k)
+    H = np.empty((N, k, k))
+    H[:, iu, ju] = upper
+    H[:, ju, iu] = upper
     if shift is not None:
         # sum_l w_l (A_l + s_l d^T)^T M (A_l + s_l d^T) = Gram + u d^T + d u^T + c d d^T
         s, d = shift[0][fixed], shift[1]
@@ -89,6 +97,14 @@ def gram_hessian(P, W, Q, gram, shift=None):
         H = H + ud + ud.transpose(0, 2, 1) + c[:, None, None] * np.outer(d, d)
     Qm = np.ascontiguousarray(Q[:, :, moving]).reshape(N, -1, k)
     return H + Qm.transpose(0, 2, 1) @ Qm
+
+
+_PAIR_I, _PAIR_J = np.array(GRAM_PAIRS).T
+
+
+@lru_cache(maxsize=8)
+def _upper_indices(k: int):
+    return np.triu_indices(k)
 
 
 def normal_blocks(P, W, basis, residual, gram=None):

@@ -62,11 +62,19 @@ per-frame fits: iBUG-68's 51 fixed points ran 0.5-1.4 ms slower with the Gram bl
 mesh's ~450 10-17 % faster)."""
 
 
+GRAM_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+"""The coordinate pairs (i, j), i <= j, of :class:`FixedGram`'s packed blocks."""
+
+
 class FixedGram(NamedTuple):
     """Gram blocks of the identity rows of the fixed landmarks (see ``linear.gram_hessian``):
     ``fixed`` (F,) the landmarks, ``group`` (F,) their weight group, ``first`` (g,) the first
-    of each group, ``moving`` the sliding columns (a slice or indices), ``G`` (g, 3, 3, K, K)
-    the blocks, ``rows`` (3 F, K) the fixed landmarks' rows, coordinate-major."""
+    of each group, ``moving`` the sliding columns (a slice or indices), ``G`` (g 6, K (K + 1)
+    / 2) the blocks ``G_ij = sum_l A_l[i]^T A_l[j]`` of each group for the :data:`GRAM_PAIRS`,
+    ``G_ij + G_ji`` off the diagonal (the weights ``(P^T P)_ij`` are symmetric), each
+    symmetric and kept as its upper triangle (row-major, ``np.triu_indices``): a third of the
+    nine full blocks, which a fit re-reads from memory at every Hessian; ``rows`` (3 F, K) the
+    fixed landmarks' rows, coordinate-major."""
     fixed: np.ndarray
     group: np.ndarray
     first: np.ndarray
@@ -98,9 +106,13 @@ def fixed_gram(bank, K, sliding, std):
     key = (K, moving.tobytes(), group.tobytes())
     if key not in cache:
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
-        G = np.stack([np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
-                      for g in range(len(values))])
-        cache[key] = FixedGram(fixed, group, first, sliding, np.ascontiguousarray(G),
+        iu, ju = np.triu_indices(K)
+        G = []
+        for g in range(len(values)):
+            full = np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
+            G += [(full[i, j] if i == j else full[i, j] + full[j, i])[iu, ju]
+                  for i, j in GRAM_PAIRS]
+        cache[key] = FixedGram(fixed, group, first, sliding, np.stack(G),
                                np.ascontiguousarray(Af.transpose(1, 0, 2)).reshape(-1, K))
     return cache[key]
 

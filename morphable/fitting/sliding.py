@@ -28,19 +28,21 @@ def slide(pb: Problem, st: State):
         # a pinhole camera sees the outline where the surface turns away from its centre (the
         # direction taken to each line's start on the mean shape: a few mm do not change it)
         centre = -np.einsum("nji,nj->ni", st.R, st.t)
-        view = []
-        for lines in bank.outlines:
-            v = centre[:, None] - bank.mean[lines[:, 0]][None]
-            view.append(v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
+        v = centre[:, None] - bank.mean[bank.outline_rows[:, 0]][None]
+        view = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9)
     else:
         view = st.R[:, 2]
-    outlines = outline_points(bank, view)
-    alpha = np.broadcast_to(st.alpha[:, :pb.n_identity], (pb.N, pb.n_identity))
-    projected = []
-    for a, b, w in outlines:
-        X = [bank.mean[r] + np.einsum("nlik,nk->nli", pb.A[r], alpha)
-             + (np.einsum("nlie,ne->nli", pb.B[r], st.beta) if pb.E else 0.0) for r in (a, b)]
-        X = (1 - w[..., None]) * X[0] + w[..., None] * X[1]
-        projected.append(project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0])
-    pb.y, pb.tangent = slide_contours(bank, st.corr, outlines, projected, pb.y_obs, pb.mask)
+    outline = a, b, w = outline_points(bank, view)                   # (N, T) each
+    # both ends of every outline point in one gather of the basis rows
+    rows = np.concatenate([a, b], axis=1)
+    n = pb.n_identity
+    alpha = np.broadcast_to(st.alpha[:, :n], (pb.N, n))
+    X = bank.mean[rows] + (pb.A[rows].reshape(pb.N, -1, n) @ alpha[..., None]).reshape(
+        rows.shape + (3,))
+    if pb.E:
+        X += (pb.B[rows].reshape(pb.N, -1, pb.E) @ st.beta[..., None]).reshape(rows.shape + (3,))
+    T = a.shape[1]
+    X = (1 - w[..., None]) * X[:, :T] + w[..., None] * X[:, T:]
+    uv = project(X, st.R, st.t, st.k, pb.principal, pb.perspective, False)[0]
+    pb.y, pb.tangent = slide_contours(bank, st.corr, outline, uv, pb.y_obs, pb.mask)
     gather(pb, st)
