@@ -907,6 +907,17 @@ def test_fit_without_jaw_points_never_computes_the_outline(sfm, monkeypatch):
         fit_landmarks(sfm, full, (512, 512))
 
 
+@pytest.mark.parametrize("n_expression", [0, None])
+def test_a_fit_without_identity_modes_still_slides_the_jaw(sfm, n_expression):
+    # n_identity=0: the mean face's shape (and its expressions), posed; the jaw still slides
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=30)
+    lm = simulate_landmarks(sfm, cam)
+    res = fit_landmarks(sfm, lm, (512, 512), n_identity=0, n_expression=n_expression)
+    assert res.landmark_rmse_px[0] < 0.5
+    assert abs(res.euler_deg[0, 0] - 30) < 1.0
+    assert np.isfinite(res.vertices(0)).all()
+
+
 def test_fit_options_carry_the_defaults_of_fit_landmarks():
     # fit_landmarks' keyword arguments build FitOptions: one set of settings, the same defaults
     import dataclasses

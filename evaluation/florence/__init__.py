@@ -32,7 +32,8 @@ reports, per method and condition, the mean over the subjects::
 or subjects of the fitted model itself with a landmark definition error added
 (``--synthetic-scan sfm --definition-noise 2.5``); ``--expression-std`` gives them
 expressions; ``--n-videos 5`` draws each subject's videos five times (a subject's value is
-then its mean over the draws; ``draw_std_mm`` in the report, the spread over draws). With ``--detect`` their frames are rendered and a detector finds the landmarks
+then its mean over the draws; ``draw_std_mm`` in the report, the spread over draws). With
+``--detect`` their frames are rendered and a detector finds the landmarks
 (``--landmark-detector``, ``--face-detector``; default the face mesh when installed, else dlib);
 ``--appearance PHOTO ...`` dresses the subjects in the colours of photos of faces
 (:func:`evaluation.scans.photo_colors`), without which a detector sees clay.

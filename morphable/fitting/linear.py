@@ -62,9 +62,9 @@ def gram_hessian(P, W, Q, gram, shift=None):
     ``sum_g w_g sum_ij (P^T P)_ij G_gij`` with ``G_gij = sum_{l in g} A_l[i]^T A_l[j]``
     computed once per model: far fewer operations than the plain product. ``gram`` is
     :func:`~morphable.fitting.rows.fixed_gram`'s ``(fixed (F,), group (F,), first (g,),
-    moving, G (g 6, k (k + 1) / 2), rows)`` (packed: :class:`~morphable.fitting.rows.
-    FixedGram`); frames that do not qualify (per-point projections,
-    missing or differently weighted fixed landmarks) fall back to the plain product.
+    moving, G (g 6, k (k + 1) / 2), rows)``, the blocks packed
+    (:class:`~morphable.fitting.rows.FixedGram`); frames that do not qualify (per-point
+    projections, missing or differently weighted fixed landmarks) fall back to the plain product.
     ``moving`` (indices or a slice) covers every other landmark that can have a weight.
     ``shift``: None, or ``(s (L, 3) mm, d (k,))`` where the rows of ``Phi`` are the Gram's rows
     plus ``s_l d^T`` (a shared fit's landmark offsets growing with the face,

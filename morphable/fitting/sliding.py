@@ -36,9 +36,10 @@ def slide(pb: Problem, st: State):
     # both ends of every outline point in one gather of the basis rows
     rows = np.concatenate([a, b], axis=1)
     n = pb.n_identity
-    alpha = np.broadcast_to(st.alpha[:, :n], (pb.N, n))
-    X = bank.mean[rows] + (pb.A[rows].reshape(pb.N, -1, n) @ alpha[..., None]).reshape(
-        rows.shape + (3,))
+    X = bank.mean[rows]                                             # (N, 2T, 3), a copy
+    if n:
+        alpha = np.broadcast_to(st.alpha[:, :n], (pb.N, n))
+        X += (pb.A[rows].reshape(pb.N, -1, n) @ alpha[..., None]).reshape(rows.shape + (3,))
     if pb.E:
         X += (pb.B[rows].reshape(pb.N, -1, pb.E) @ st.beta[..., None]).reshape(rows.shape + (3,))
     T = a.shape[1]
