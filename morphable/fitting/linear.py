@@ -8,11 +8,9 @@ ridge regression, solved here for many frames at once.
 """
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
-from .rows import GRAM_PAIRS
+from .rows import GRAM_PAIRS, upper_indices
 
 __all__ = ["solve_identity", "solve_expression", "ridge_solve", "normal_blocks", "project_rows",
            "weighted_rows", "gram_hessian"]
@@ -83,7 +81,7 @@ def gram_hessian(P, W, Q, gram, shift=None):
     M = P.transpose(0, 2, 1) @ P                                    # (N, 3, 3)
     wM = (wg[:, :, None] * M[:, _PAIR_I, _PAIR_J][:, None]).reshape(N, -1)
     upper = wM @ G                                                  # (N, k (k + 1) / 2)
-    iu, ju = _upper_indices(k)
+    iu, ju = upper_indices(k)
     H = np.empty((N, k, k))
     H[:, iu, ju] = upper
     H[:, ju, iu] = upper
@@ -100,11 +98,6 @@ def gram_hessian(P, W, Q, gram, shift=None):
 
 
 _PAIR_I, _PAIR_J = np.array(GRAM_PAIRS).T
-
-
-@lru_cache(maxsize=8)
-def _upper_indices(k: int):
-    return np.triu_indices(k)
 
 
 def normal_blocks(P, W, basis, residual, gram=None):

@@ -13,6 +13,7 @@ and its derivatives are used by that structure (:mod:`~morphable.fitting.offsets
 from __future__ import annotations
 
 import weakref
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -20,7 +21,8 @@ import numpy as np
 from .correspondences import Correspondences, across_outline
 from .pose import project, projection_jacobian
 
-__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "MIN_GRAM_LANDMARKS", "FixedGram",
+__all__ = ["basis_rows", "size_direction", "MAX_GRAM_GROUPS", "MIN_GRAM_LANDMARKS", "GRAM_PAIRS",
+           "upper_indices", "FixedGram",
            "fixed_gram", "face_size",
            "from_coefficients", "offsets", "shared_rows", "fixed_rows", "gather", "combine", "identity_points",
            "points", "residuals"]
@@ -66,6 +68,15 @@ GRAM_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 """The coordinate pairs (i, j), i <= j, of :class:`FixedGram`'s packed blocks."""
 
 
+@lru_cache(maxsize=8)
+def upper_indices(k: int):
+    """``np.triu_indices(k)`` (read-only, cached): the order in which :class:`FixedGram`
+    packs each symmetric k x k block, and ``linear.gram_hessian`` unpacks it."""
+    iu, ju = np.triu_indices(k)
+    iu.flags.writeable = ju.flags.writeable = False
+    return iu, ju
+
+
 class FixedGram(NamedTuple):
     """Gram blocks of the identity rows of the fixed landmarks (see ``linear.gram_hessian``):
     ``fixed`` (F,) the landmarks, ``group`` (F,) their weight group, ``first`` (g,) the first
@@ -106,7 +117,7 @@ def fixed_gram(bank, K, sliding, std):
     key = (K, moving.tobytes(), group.tobytes())
     if key not in cache:
         Af = bank.identity[bank.fixed_row[fixed], :, :K]                  # (F, 3, K)
-        iu, ju = np.triu_indices(K)
+        iu, ju = upper_indices(K)
         G = []
         for g in range(len(values)):
             full = np.einsum("lik,ljm->ijkm", Af[group == g], Af[group == g])
