@@ -61,6 +61,11 @@ MAX_RESIDUAL_PX64 = 1.5
 photo's pixels times the alignment's scale, times 64 / R): about 1/10 of the inter-ocular
 distance (16 px at 64). Chosen from the residual distribution of the full build (docs/neural.md)."""
 
+DARK_LEVEL = 13
+"""A crop pixel darker than this in every channel (0.05 of 255) counts towards a source's
+``dark_share`` in the report: black padding where a crop leaves its photo would show there
+(:func:`morphable.refinement.pad_like_ffhq` fills it), as do dark hair and shadows."""
+
 _CACHE_FORMAT = 1
 
 
@@ -327,9 +332,11 @@ def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, 
         bake_s = time.perf_counter() - t0
         ok = [r for r in rows if r[0] == source]
         r64 = np.array([b["residual_px64"] for b in baked_all if "error" not in b])
+        dark = [float((r[3]["image"] < DARK_LEVEL).all(-1).mean()) for r in ok]
         counts[source] = {"photos": len(items), "face_found": found, "passed": passed,
                           "residual_px64_found": {f"p{q}": round(float(np.percentile(r64, q)), 3)
                                                   for q in (50, 90, 95, 99)} if len(r64) else None,
+                          "dark_share": round(float(np.mean(dark)), 4) if dark else None,
                           "held_out": int(sum(held_out(r[1]["person_key"]) for r in ok)),
                           "people": len({r[1]["person"] for r in ok})}
         timings[source] = {"fit_s": round(fit_s, 1), "fitted_now": n_new, "bake_s": round(bake_s, 1)}

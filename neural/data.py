@@ -290,24 +290,37 @@ def align_image(image, landmarks, resolution: int = 64, model: str = "sfm") -> n
 
 def warp_image(image, A, resolution: int) -> np.ndarray:
     """(H, W, 3) uint8 or PIL image -> (resolution, resolution, 3) uint8 by the similarity
-    ``A`` (2, 3) of :func:`alignment` (bicubic; black outside the photo). A photo shrunk by 2
-    or more is first box-filtered by the whole factor, so that the bicubic warp does not alias."""
+    ``A`` (2, 3) of :func:`alignment` (bicubic). Where the crop leaves the photo it shows
+    FFHQ's mirrored, blurred and faded background
+    (:func:`morphable.refinement.pad_like_ffhq`), not black. A photo shrunk by 2 or more is
+    first box-filtered by the whole factor, so that the bicubic warp does not alias."""
     from PIL import Image
 
+    from morphable.refinement import pad_like_ffhq
+
     img = image if isinstance(image, Image.Image) else Image.fromarray(np.asarray(image))
+    img = img.convert("RGB")
     A = np.asarray(A, np.float64)
     f = int(1.0 / np.sqrt(abs(np.linalg.det(A[:, :2]))))
     if f >= 2:
         # reduced pixel q covers photo pixels f q .. f q + f - 1: its centre is f q + (f - 1) / 2
-        img = img.convert("RGB").reduce(f)
+        img = img.reduce(f)
         A = np.hstack([A[:, :2] * f, (A[:, :2] @ np.full(2, (f - 1) / 2) + A[:, 2])[:, None]])
+    # the crop's corners in the photo, pixel-edge coordinates (pixel centres are integers)
+    corners = np.array([[-0.5, -0.5], [resolution - 0.5, -0.5], [-0.5, resolution - 0.5],
+                        [resolution - 0.5, resolution - 0.5]])
+    quad = (corners - A[:, 2]) @ np.linalg.inv(A[:, :2]).T + 0.5
+    padded, (dx, dy) = pad_like_ffhq(np.asarray(img), (*quad.min(0), *quad.max(0)))
+    if dx or dy:
+        img = Image.fromarray(padded)
+        A = np.hstack([A[:, :2], (A[:, 2] - A[:, :2] @ np.array([dx, dy], np.float64))[:, None]])
     # PIL wants the inverse map (output pixel -> input pixel) in pixel-corner coordinates;
     # our pixel centres are integers, PIL's are at +0.5
     inv = np.linalg.inv(np.vstack([A, [0, 0, 1]]))
     shift = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])
     M = np.linalg.inv(shift) @ inv @ shift
-    out = img.convert("RGB").transform((resolution, resolution), Image.Transform.AFFINE,
-                                       M[:2].ravel().tolist(), resample=Image.Resampling.BICUBIC)
+    out = img.transform((resolution, resolution), Image.Transform.AFFINE, M[:2].ravel().tolist(),
+                        resample=Image.Resampling.BICUBIC)
     return np.asarray(out)
 
 

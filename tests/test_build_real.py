@@ -29,6 +29,7 @@ def test_pack_keys_shapes_and_report(built):
     for s in SOURCES:
         c = report["sources"][s]
         assert c["photos"] == 3 and c["passed"] <= c["face_found"] <= 3
+        assert 0 <= c["dark_share"] <= 1
     assert report["normal_error_deg_p99"] < 3          # normal_scale 64
 
 
@@ -102,3 +103,26 @@ def test_warp_image_puts_a_photo_point_where_the_similarity_says(scale):
     ys, xs = np.mgrid[:64, :64]
     w = np.clip(crop, 0, None)
     assert np.allclose([(xs * w).sum() / w.sum(), (ys * w).sum() / w.sum()], [32, 32], atol=0.25)
+
+
+def test_a_crop_past_the_photo_shows_faded_mirrored_background_not_black():
+    from morphable.refinement import pad_like_ffhq
+    from neural.data import warp_image
+
+    rng = np.random.default_rng(0)
+    photo = rng.integers(60, 200, size=(120, 120, 3), dtype=np.uint8)
+    photo[:, :60] = (200, 40, 40)                          # left half red, right half noise
+    A = np.array([[0.25, 0.0, 0.0], [0.0, 0.25, 0.0]])
+    A[:, 2] = [32, 32] - A[:, :2] @ [60, 60]               # 256 px of photo into 64: past its edges
+    crop = warp_image(photo, A, 64).astype(float)
+    # the photo spans crop pixels 17-47; the blur reaches a few pixels into it, as in FFHQ
+    expected = warp_image(np.pad(photo, ((68, 68), (68, 68), (0, 0)), mode="reflect"),
+                          A + [[0, 0, -17], [0, 0, -17]], 64).astype(float)
+    assert np.abs(crop[25:39, 25:39] - expected[25:39, 25:39]).max() <= 2.0     # rounding
+    assert crop.sum(-1).min() > 100                        # no black anywhere
+    # the mirror fades into the photo's median colour towards the padding's outer edge
+    padded, (dx, dy) = pad_like_ffhq(photo, (-68, -68, 188, 188))
+    median = np.median(padded.reshape(-1, 3).astype(float), axis=0)
+    assert (dx, dy) == (94, 94) and padded.shape == (120 + 2 * 94, 120 + 2 * 94, 3)  # 68 + 0.1 of 256
+    assert np.abs(padded[0, 0] - median).max() <= 1.0
+    assert np.abs(padded[dy + 10, 2] - median).max() < np.abs(padded[dy + 10, dx - 2] - median).max()

@@ -537,6 +537,9 @@ def test_command_on_several_video_draws(tmp_path, james_paths):
     r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--n-videos", "0",
                 "--report", tmp_path / "z.json")
     assert r.returncode == 2 and "--n-videos" in r.stderr and not (tmp_path / "z.json").exists()
+    r = run_cli("--synthetic-scan", "ict", "--methods", "gar", "--gar-steps", "0",
+                "--report", tmp_path / "g.json")
+    assert r.returncode == 2 and "--gar-steps" in r.stderr and not (tmp_path / "g.json").exists()
 
 def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
     from evaluation import report

@@ -82,6 +82,8 @@ def _parser():
     p.add_argument("--expression-weight", type=float,
                    help="ours: weight of the expression prior (default 1: the fitter's, "
                         "morphable.fitting.noise.expression_precision)")
+    p.add_argument("--gar-steps", type=int,
+                   help="gar: refinement steps per frame (default 100)")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
@@ -155,6 +157,10 @@ def main(argv=None) -> int:
     if args.focal_px is not None and not args.frames_dir:
         raise InputError("--focal-px applies to --frames-dir (synthetic videos know their focal)")
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
+    if args.gar_steps is not None:
+        if args.gar_steps < 1:
+            raise InputError(f"--gar-steps {args.gar_steps}: must be at least 1")
+        efforts["gar"] = {"steps": args.gar_steps}
     if args.plot:
         from evaluation.plots import check_plot_path
 

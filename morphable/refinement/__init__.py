@@ -5,8 +5,9 @@ expression beta, camera pose theta), the steps, each usable alone:
 
 1. :func:`face_crop` / :func:`crop_camera` / :func:`crop_image` (:mod:`.crop`): the
    FFHQ-style square (:func:`face_frame`) around the fitted landmarks (the framing of the
-   neural plugin's training data), resized to the renderer's resolution, and the fit's
-   camera re-expressed in that crop;
+   neural plugin's training data), resized to the renderer's resolution, with FFHQ's
+   mirrored and faded background where it leaves the photo (:func:`pad_like_ffhq`, as in
+   the training crops), and the fit's camera re-expressed in that crop;
 2. :func:`~.problem.set_up`: the visibility of the fitted mesh in the crop is cast once
    (open3d); the camera-frame normal map ``n~(alpha, beta, theta)`` is then differentiable
    in the coefficients (:meth:`morphable.MorphableModel.vertices` on torch tensors) and a
@@ -34,10 +35,10 @@ expression beta, camera pose theta), the steps, each usable alone:
 Units: mm and degrees in the results; images (H, W, 3) float in [0, 1] (or uint8). torch is
 imported only when a refinement runs.
 """
-from .crop import crop_camera, crop_image, face_crop, face_frame
+from .crop import crop_camera, crop_image, face_crop, face_frame, pad_like_ffhq
 from .editing import Refinement, edit
 from .inversion import refine, refine_frames
 from .loss import DEFAULT_WEIGHTS, landmark_trust
 
-__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "landmark_trust", "refine",
+__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "pad_like_ffhq", "landmark_trust", "refine",
            "refine_frames", "edit", "Refinement", "DEFAULT_WEIGHTS"]

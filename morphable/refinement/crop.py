@@ -8,7 +8,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import InputError
 
-__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image"]
+__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "pad_like_ffhq"]
 
 
 def face_frame(landmarks) -> tuple[np.ndarray, float]:
@@ -25,14 +25,21 @@ def face_frame(landmarks) -> tuple[np.ndarray, float]:
     ([32.0, 32.0], 96.0)
     """
     lm = np.asarray(landmarks, dtype=np.float64)
-    eyes = np.nanmean(lm[36:42], 0), np.nanmean(lm[42:48], 0)
-    mouth = np.nanmean(lm[48:68], 0)
+    eyes = _mean_of_given(lm[36:42]), _mean_of_given(lm[42:48])
+    mouth = _mean_of_given(lm[48:68])
     if not (np.isfinite(eyes).all() and np.isfinite(mouth).all()):
         raise InputError("face crop: eye and mouth landmarks are missing")
     mid = (eyes[0] + eyes[1]) / 2
     centre = mid + 0.1 * (mouth - mid)
     width = 2.0 * max(2.0 * np.linalg.norm(eyes[1] - eyes[0]), 1.8 * np.linalg.norm(mouth - mid))
     return centre, float(width)
+
+
+def _mean_of_given(points) -> np.ndarray:
+    """(N, D) with missing rows NaN -> (D,) mean of the given rows (NaN when none is given;
+    np.nanmean would warn "Mean of empty slice")."""
+    given = np.isfinite(points).all(1)
+    return points[given].mean(0) if given.any() else np.full(points.shape[1], np.nan)
 
 
 def face_crop(landmarks) -> tuple[float, float, float]:
@@ -61,23 +68,61 @@ def crop_camera(camera: Camera, crop, resolution: int) -> Camera:
                                image_size=(resolution, resolution), principal=principal)
 
 
+def pad_like_ffhq(image, box) -> tuple[np.ndarray, tuple[int, int]]:
+    """Extend a photo so that a crop reaching past it shows background rather than black, the
+    way FFHQ's alignment does (Karras et al. 2019, ``recreate_aligned_images``): the photo is
+    mirrored at its edges, and the mirror is blurred more and faded towards the photo's median
+    colour the further out it lies.
+
+    image : (H, W, 3) uint8; box : (left, top, right, bottom) of the crop in pixel-edge
+    coordinates (the photo spans [0, W] x [0, H]) -> (padded (H', W', 3) uint8, (dx, dy)):
+    photo pixel (x, y) is padded pixel (x + dx, y + dy). A box inside the photo returns the
+    photo itself and (0, 0).
+
+    >>> img = np.full((40, 30, 3), 200, np.uint8)
+    >>> out, (dx, dy) = pad_like_ffhq(img, (-10, -10, 50, 50))
+    >>> out.shape, (dx, dy), int(out[0, 0, 0])
+    ((76, 74, 3), (18, 18), 200)
+    """
+    from scipy.ndimage import gaussian_filter
+
+    a = np.asarray(image)[..., :3]
+    H, W = a.shape[:2]
+    left, top, right, bottom = (float(v) for v in box)
+    need = np.array([-left, -top, right - W, bottom - H])
+    if need.max() <= 0:
+        return a, (0, 0)
+    side = max(right - left, bottom - top)
+    # FFHQ's margins: 0.1 of the crop beyond what it needs, every side at least 0.3 of it, so
+    # that the fade to the median is gradual
+    border = max(int(round(0.1 * side)), 3)
+    pl, pt, pr, pb = (int(v) for v in np.maximum(np.ceil(need).astype(int) + border,
+                                                 int(round(0.3 * side))))
+    f = np.pad(a.astype(np.float32), ((pt, pb), (pl, pr), (0, 0)), mode="reflect")
+    h, w = f.shape[:2]
+    x = np.arange(w, dtype=np.float32)[None, :]
+    y = np.arange(h, dtype=np.float32)[:, None]
+    # 0 on the photo's edge, 1 on the padding's outer edge, negative inside the photo
+    out = np.maximum(1.0 - np.minimum(x / pl, (w - 1 - x) / pr),
+                     1.0 - np.minimum(y / pt, (h - 1 - y) / pb))[..., None]
+    blur = 0.02 * side
+    f += (gaussian_filter(f, [blur, blur, 0]) - f) * np.minimum(np.maximum(out * 3.0 + 1.0, 0.0), 1.0)
+    f += (np.median(f, axis=(0, 1)) - f) * np.minimum(np.maximum(out, 0.0), 1.0)
+    return np.round(np.minimum(np.maximum(f, 0.0), 255.0)).astype(np.uint8), (pl, pt)
+
+
 def crop_image(image, crop, resolution: int) -> np.ndarray:
     """(H, W, 3) uint8 or float [0, 1] -> (resolution, resolution, 3) float [0, 1] of the
-    crop (area-averaged; outside the image is black)."""
+    crop (area-averaged; where it leaves the image, :func:`pad_like_ffhq`'s background, as in
+    the renderers' training crops)."""
     from PIL import Image
 
     a = np.asarray(image)
     if a.dtype != np.uint8:
         a = np.round(np.clip(a, 0, 1) * 255).astype(np.uint8)
     left, top, side = crop
-    H, W = a.shape[:2]
-    # pad where the crop leaves the image (PIL's box must lie inside it)
-    pl, pt = max(0, int(np.ceil(-left))), max(0, int(np.ceil(-top)))
-    pr = max(0, int(np.ceil(left + side - W)))
-    pb = max(0, int(np.ceil(top + side - H)))
-    if pl or pt or pr or pb:
-        a = np.pad(a[..., :3], ((pt, pb), (pl, pr), (0, 0)))
-    im = Image.fromarray(a[..., :3]).resize((resolution, resolution), Image.BOX,
-                                            box=(left + pl, top + pt, left + pl + side,
-                                                 top + pt + side))
+    # PIL's box must lie inside the image
+    a, (dx, dy) = pad_like_ffhq(a, (left, top, left + side, top + side))
+    im = Image.fromarray(np.ascontiguousarray(a)).resize(
+        (resolution, resolution), Image.BOX, box=(left + dx, top + dy, left + dx + side, top + dy + side))
     return np.asarray(im, dtype=np.float32) / 255.0
