@@ -40,5 +40,5 @@ from .editing import Refinement, edit
 from .inversion import refine, refine_frames
 from .loss import DEFAULT_WEIGHTS, landmark_trust
 
-__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "pad_like_ffhq", "landmark_trust", "refine",
-           "refine_frames", "edit", "Refinement", "DEFAULT_WEIGHTS"]
+__all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "pad_like_ffhq", "landmark_trust",
+           "refine", "refine_frames", "edit", "Refinement", "DEFAULT_WEIGHTS"]

@@ -106,9 +106,9 @@ def pad_like_ffhq(image, box) -> tuple[np.ndarray, tuple[int, int]]:
     out = np.maximum(1.0 - np.minimum(x / pl, (w - 1 - x) / pr),
                      1.0 - np.minimum(y / pt, (h - 1 - y) / pb))[..., None]
     blur = 0.02 * side
-    f += (gaussian_filter(f, [blur, blur, 0]) - f) * np.minimum(np.maximum(out * 3.0 + 1.0, 0.0), 1.0)
-    f += (np.median(f, axis=(0, 1)) - f) * np.minimum(np.maximum(out, 0.0), 1.0)
-    return np.round(np.minimum(np.maximum(f, 0.0), 255.0)).astype(np.uint8), (pl, pt)
+    f += (gaussian_filter(f, [blur, blur, 0]) - f) * np.clip(out * 3.0 + 1.0, 0.0, 1.0)
+    f += (np.median(f, axis=(0, 1)) - f) * np.clip(out, 0.0, 1.0)
+    return np.round(np.clip(f, 0.0, 255.0)).astype(np.uint8), (pl, pt)
 
 
 def crop_image(image, crop, resolution: int) -> np.ndarray:
