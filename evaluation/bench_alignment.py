@@ -179,9 +179,13 @@ def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = Non
 
 
 def add_refine_arguments(p) -> None:
-    """``--steps`` and ``--gar-weights`` of the refined methods, on the parser ``p``."""
+    """``--steps``, ``--gar-weights`` and ``--gar-region`` of the refined methods, on the
+    parser ``p``."""
     p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
     p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
+    p.add_argument("--gar-region", choices=("crop", "face"), default="crop",
+                   help="pixels gar's photometric terms compare: the whole crop (default) or "
+                        "the fitted face")
 
 
 def refine_options(args) -> dict:
@@ -189,8 +193,10 @@ def refine_options(args) -> dict:
     :func:`add_refine_arguments`; a one-line InputError when the weights file is missing."""
     if args.gar_weights and not Path(args.gar_weights).is_file():
         raise InputError(f"{args.gar_weights}: --gar-weights file not found")
-    return {"steps": args.steps,
-            "renderer_options": {"gar": {"weights": args.gar_weights}} if args.gar_weights else None}
+    gar = {"weights": args.gar_weights} if args.gar_weights else {}
+    if args.gar_region != "crop":
+        gar["photometric_region"] = args.gar_region
+    return {"steps": args.steps, "renderer_options": {"gar": gar} if gar else None}
 
 
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,

@@ -13,6 +13,8 @@ Variants (paper Table 3 style):
 - ``gar-no-initial``: the same without V (``z`` from a fixed seed; paper "w/o initial");
 - ``gar-no-norm-cycle``: the GAR trained with lambda_n = 0 (``--generator-n0``, default the
   committed ``weights/gar_tiny_no_norm_cycle.pt``), with V (paper "w/o norm-cycle").
+  ``--inverter none``: every GAR variant starts from the default latent (for generators
+  without a V of their own, e.g. two runs compared at the same step).
 
 Each face: random SFM identity, expression, pose, procedural albedo, light and background
 (:class:`neural.data.SyntheticFaces`, another seed than training), rendered at
@@ -175,7 +177,9 @@ def main(argv=None) -> int:
     p.add_argument("--generator-n0", default="auto",
                    help="generator.pt of the lambda_n = 0 run (default: the committed one)")
     p.add_argument("--plot", help="PNG of vertex error against seconds per variant")
-    p.add_argument("--inverter", default="auto", help="inverter.pt (default: committed/runs)")
+    p.add_argument("--inverter", default="auto",
+                   help="inverter.pt (default: committed/runs); 'none': every GAR variant starts "
+                        "from the default latent")
     p.add_argument("--landmark-noise", type=float, default=1.0, help="px")
     p.add_argument("--threads", type=int)
     add_verbosity_arguments(p)
@@ -190,7 +194,8 @@ def main(argv=None) -> int:
         torch.set_num_threads(args.threads)
     model, faces = held_out_faces(args.faces, args.image_size)
     report = run_ablation(faces, model, steps=args.steps, generator=args.generator,
-                          generator_n0=args.generator_n0, inverter=args.inverter,
+                          generator_n0=args.generator_n0,
+                          inverter=None if args.inverter == "none" else args.inverter,
                           landmark_noise=args.landmark_noise)
     report["command"] = "python -m evaluation.gar_ablation " + " ".join(argv if argv is not None else sys.argv[1:])
     from morphable.io.atomic import atomic_path

@@ -9,7 +9,9 @@ Weights: ``weights=`` (a ``generator.pt`` / ``checkpoint.pt`` of :mod:`neural.tr
 shapes only). ``inverter=``: the inverting network V that starts an inversion's latent
 ("auto": ``inverter_tiny.pt`` beside the generator's weights file, else the committed
 ``neural/weights/inverter_tiny.pt``, if present; None: none; a path or an
-:class:`neural.inverter.Inverter`).
+:class:`neural.inverter.Inverter`). ``photometric_region``: the pixels an inversion's
+photometric terms compare, "crop" (all: G renders a background too) or "face" (the fitted
+face's coverage, as the classical renderer).
 
 Appearance: ``z`` (B, z_dim) latent, ``noise`` list of per-layer maps eps (B, 1, r, r) as
 from ``Generator.make_noise`` (zeros by default).
@@ -44,14 +46,20 @@ class GARRenderer(RendererBase):
 
     Inverted (:func:`morphable.refinement.refine`), it starts from ``z <- V(image)`` when it
     has an inverter V (else its default latent) and ``eps <- 0``, moves ``z`` and ``eps``,
-    compares the whole crop (G renders a background too) and holds ``eps`` near 0 by the
-    prior term ``eps`` = sum eps^2.
+    compares the whole crop (G renders a background too; ``photometric_region="face"``: the
+    face only) and holds ``eps`` near 0 by the prior term ``eps`` = sum eps^2.
     """
+
+    photometric_regions = ("crop", "face")
 
     learning_rates = {"z": 0.03, "noise": 0.03}
 
     def __init__(self, weights=None, allow_untrained: bool = False, config: str = "tiny",
-                 seed: int = 0, inverter="auto"):
+                 seed: int = 0, inverter="auto", photometric_region: str = "crop"):
+        if photometric_region not in self.photometric_regions:
+            raise InputError(f"gar renderer: photometric_region {photometric_region!r}: choose "
+                             f"from {', '.join(self.photometric_regions)}")
+        self.photometric_region = photometric_region
         path = Path(weights) if weights else default_generator_path()
         if path is not None:
             self.generator = load_generator(path)
@@ -102,8 +110,9 @@ class GARRenderer(RendererBase):
         return app, f"inverter {V.source}" if getattr(V, "source", None) else "inverter"
 
     def photometric_mask(self, coverage):
-        """The whole crop: G renders the background too."""
-        return torch.ones_like(coverage)
+        """The whole crop (G renders the background too), or ``coverage`` itself for
+        ``photometric_region="face"``."""
+        return coverage if self.photometric_region == "face" else torch.ones_like(coverage)
 
     def appearance_prior(self, appearance) -> dict:
         """``eps``: the squared noise maps, summed."""

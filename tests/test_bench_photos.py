@@ -87,3 +87,20 @@ def test_refined_method_scores_the_refined_fit(data_dir, tmp_path):
     a = [b["nme_percent"] for b in plain["bins"] if b["nme_percent"] is not None]
     b = [b["nme_percent"] for b in refined["bins"] if b["nme_percent"] is not None]
     assert len(a) == len(b) == 1 and a != b and abs(a[0] - b[0]) < 1.0
+
+
+def test_refine_options_carry_the_gar_region(tmp_path):
+    import argparse
+
+    from evaluation.bench_alignment import add_refine_arguments, refine_options
+
+    p = argparse.ArgumentParser()
+    add_refine_arguments(p)
+    assert refine_options(p.parse_args([])) == {"steps": 100, "renderer_options": None}
+    w = tmp_path / "g.pt"
+    w.write_bytes(b"")
+    opts = refine_options(p.parse_args(["--gar-weights", str(w), "--gar-region", "face", "--steps", "5"]))
+    assert opts == {"steps": 5, "renderer_options": {"gar": {"weights": str(w),
+                                                             "photometric_region": "face"}}}
+    with pytest.raises(SystemExit):
+        p.parse_args(["--gar-region", "hair"])

@@ -663,6 +663,11 @@ def test_gar_method_refines_rendered_frames(james, sfm, random_gar):
     # two refinement steps move the per-frame fits only a little
     assert abs(gar["mean_mm"] - ours["mean_mm"]) < 0.5
     assert np.isfinite(error_maps(errors)["gar", "outdoor"].errors).sum() > 1000
+    # its photometric terms on the fitted face alone (--gar-region face): other fits
+    face, _ = run_protocol(james, sfm, ["gar"], ["outdoor"], n_sampled=2, n_frames=6,
+                           efforts={"gar": {"steps": 2, "region": "face"}})
+    face = face["methods"]["gar"]["outdoor"]
+    assert np.isfinite(face["mean_mm"]) and face["mean_mm"] != gar["mean_mm"]
 
 
 def test_subjects_wear_a_photos_colours(sfm, data_dir):

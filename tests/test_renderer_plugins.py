@@ -113,6 +113,10 @@ def test_inversion_hooks():
     app, init = gar.initial_appearance(image, cover, seed=3)
     assert init == "inverter" and not torch.equal(app["z"], gar.default_appearance(1)["z"])
     assert bool((gar.photometric_mask(cover) == 1).all())
+    face = get_renderer("gar", allow_untrained=True, inverter=None, photometric_region="face")
+    assert face.photometric_mask(cover) is cover
+    with pytest.raises(InputError, match="photometric_region 'hair'"):
+        get_renderer("gar", allow_untrained=True, photometric_region="hair")
     app["noise"][0] += 0.5
     prior = gar.appearance_prior(app)
     assert set(prior) == {"eps"} and float(prior["eps"]) == pytest.approx(0.25 * app["noise"][0].numel())

@@ -84,6 +84,9 @@ def _parser():
                         "morphable.fitting.noise.expression_precision)")
     p.add_argument("--gar-steps", type=int,
                    help="gar: refinement steps per frame (default 100)")
+    p.add_argument("--gar-region", choices=("crop", "face"),
+                   help="gar: pixels its photometric terms compare, the whole crop (default) "
+                        "or the fitted face")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
@@ -161,6 +164,8 @@ def main(argv=None) -> int:
         if args.gar_steps < 1:
             raise InputError(f"--gar-steps {args.gar_steps}: must be at least 1")
         efforts["gar"] = {"steps": args.gar_steps}
+    if args.gar_region is not None:
+        efforts.setdefault("gar", {})["region"] = args.gar_region
     if args.plot:
         from evaluation.plots import check_plot_path
 

@@ -307,7 +307,8 @@ class Gar(Method):
     """Each frame's landmark fit (the one :class:`OursIndependent` makes of it, with the
     camera and noise defaults of :class:`Ours`) refined by inverting the GAR renderer on the
     frame itself (:func:`morphable.refinement.refine_frames`), then averaged. ``settings``:
-    ``steps`` (refinement steps, default 100). The renderer is loaded once per run."""
+    ``steps`` (refinement steps, default 100), ``region`` (the renderer's
+    ``photometric_region``, default "crop"). The renderer is loaded once per run."""
 
     name = "gar"
     needs_images = True
@@ -331,6 +332,8 @@ class Gar(Method):
         if frames.images is None:
             raise InputError("method gar: needs the video frames (synthetic videos render them)")
         t = time.perf_counter()
+        # the region only picks the pixel mask: one loaded generator serves either
+        self.renderer.photometric_region = settings.get("region", "crop")
         verts, reports = self.refine_frames(
             self.model, np.asarray(frames.images), frames.ibug68(), self.renderer,
             steps=int(settings.get("steps", 100)),
