@@ -718,3 +718,39 @@ def test_ply_vertex_colours_dress_the_scan(sfm, tmp_path):
     plain = tmp_path / "plain.ply"
     trimesh.Trimesh(scan.vertices, scan.triangles, process=False).export(plain)
     assert load_scan(plain, scan.landmarks, units="mm").colors is None
+
+
+def test_refinement_started_at_the_scans_shape(james, sfm, random_gar):
+    """evaluation.refine_from_truth: each frame refined from its landmark fit and from the
+    scan's surface fit; distances to the surface-fit shape before and after."""
+    from evaluation.refine_from_truth import format_table, refine_from_truth
+
+    rep = refine_from_truth(james, sfm, ["outdoor"], variants=("no-photo", "gar"), steps=2,
+                            n_sampled=2, n_frames=6)
+    cell = rep["conditions"]["outdoor"]
+    for v in ("no-photo", "gar"):
+        assert cell[v]["surface"]["mm_start"] == 0.0 and len(cell[v]["surface"]["frames"]) == 2
+        assert 0 < cell[v]["surface"]["mm_end"] < 10 and 0 < cell[v]["landmark"]["mm_start"] < 20
+        assert np.isfinite(cell[v]["landmark"]["photo_end"])
+    # both variants start from the same fits; the photometric terms make the difference
+    assert cell["gar"]["landmark"]["mm_start"] == cell["no-photo"]["landmark"]["mm_start"]
+    assert cell["gar"]["landmark"]["mm_end"] != cell["no-photo"]["landmark"]["mm_end"]
+    assert 0 < rep["mean_face_mm"] < 20 and "| outdoor | gar |" in format_table(rep)
+    with pytest.raises(InputError, match="unknown variant 'vgg'"):
+        refine_from_truth(james, sfm, ["outdoor"], variants=("vgg",))
+
+
+def test_refine_from_truth_command_rejects_bad_input(james_paths, tmp_path):
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "evaluation.refine_from_truth", *map(str, args)],
+                              cwd=REPO, capture_output=True, text=True, timeout=300)
+
+    r = run("--scan", tmp_path / "none.obj", "--scan-landmarks", james_paths[1],
+            "--report", tmp_path / "r.json")
+    assert r.returncode == 2 and "none.obj" in r.stderr and "Traceback" not in r.stderr
+    r = run("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--conditions", "dusk",
+            "--report", tmp_path / "r.json")
+    assert r.returncode == 2 and "'dusk'" in r.stderr and not (tmp_path / "r.json").exists()
+    r = run("--scan", james_paths[0], "--scan-landmarks", james_paths[1], "--steps", "0",
+            "--report", tmp_path / "r.json")
+    assert r.returncode == 2 and "--steps" in r.stderr and not (tmp_path / "r.json").exists()
