@@ -75,7 +75,7 @@ def _vertex_error(vertices, true_vertices) -> float:
 def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto", inverter="auto",
                  landmark_noise=1.0, seed=0, progress=True) -> dict:
     from morphable.fitting import fit_landmarks
-    from morphable.refinement import refine
+    from morphable.refinement import NO_PHOTOMETRIC, refine
     from neural.checkpoint import default_inverter_path, default_no_norm_cycle_path
     from neural.inverter import inverter_from
     from neural.gar_renderer import GARRenderer
@@ -86,7 +86,7 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
     n0 = default_no_norm_cycle_path() if generator_n0 == "auto" else generator_n0
     # name -> None (the landmark fit itself) or (renderer, loss weight overrides)
     variants = {"landmark-only": None,
-                "landmarks-refit": ("classical", {"photo": 0.0, "feat": 0.0}),
+                "landmarks-refit": ("classical", NO_PHOTOMETRIC),
                 "classical": ("classical", None)}
     notes = {}
     try:

@@ -29,15 +29,18 @@ import numpy as np
 
 from morphable.errors import InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
+from morphable.refinement import NO_PHOTOMETRIC
+
+from .videos import CONDITIONS
 
 __all__ = ["VARIANTS", "refine_from_truth", "format_table", "main"]
 
 VARIANTS = {"gar": ("gar", None), "classical": ("classical", None),
-            "no-photo": ("classical", {"photo": 0.0, "feat": 0.0})}
+            "no-photo": ("classical", NO_PHOTOMETRIC)}
 """name -> (renderer, loss weight overrides of :func:`morphable.refinement.refine`)."""
 
 
-def refine_from_truth(scan, model, conditions=("cooperative", "indoor", "outdoor"), *,
+def refine_from_truth(scan, model, conditions=tuple(CONDITIONS), *,
                       variants=tuple(VARIANTS), steps: int = 25, n_sampled: int = 5,
                       n_frames: int = 30, seed: int = 0, log=None) -> dict:
     """The report of the module docstring for ``scan`` (:class:`evaluation.scans.Scan`, mm)
@@ -79,11 +82,12 @@ def refine_from_truth(scan, model, conditions=("cooperative", "indoor", "outdoor
                                            expression=fit.expression.copy())
             at_truth.frame_identity[i], at_truth.expression[i] = alpha, beta
             for start, f in (("landmark", fit), ("surface", at_truth)):
+                d0 = distance(f, i)
                 for v in variants:
                     new, rep = refine(image, f, renderers[v], steps=steps, frame=i,
                                       weights=VARIANTS[v][1])
                     cell[v][start].append({
-                        "mm_start": distance(f, i), "mm_end": distance(new, i),
+                        "mm_start": d0, "mm_end": distance(new, i),
                         "photo_start": rep["photometric_loss"][0],
                         "photo_end": rep["photometric_loss"][-1], "seconds": rep["runtime_s"]})
         report["conditions"][c] = {v: {s: {**{k: float(np.mean([r[k] for r in rows]))
@@ -116,7 +120,7 @@ def main(argv=None) -> int:
     p.add_argument("--scan", required=True, help="scan mesh (OBJ, PLY, ...)")
     p.add_argument("--scan-landmarks", required=True, help="its 3D landmarks")
     p.add_argument("--model", default="sfm")
-    p.add_argument("--conditions", nargs="+", default=["cooperative", "indoor", "outdoor"])
+    p.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS))
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--steps", type=int, default=25, help="refinement steps per frame")
     p.add_argument("--frames", type=int, default=5, help="sampled frames per video")
@@ -132,11 +136,7 @@ def main(argv=None) -> int:
     from morphable import load_model
 
     from .scans import load_scan
-    from .videos import CONDITIONS
 
-    for c in args.conditions:
-        if c not in CONDITIONS:
-            raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
     model = load_model(args.model)
     scan = load_scan(args.scan, args.scan_landmarks)
     report = refine_from_truth(scan, model, args.conditions, variants=args.variants,

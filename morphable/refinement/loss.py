@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import InputError
 from .geometry import project_points
 
-__all__ = ["DEFAULT_WEIGHTS", "landmark_trust", "loss_weights", "perceptual_features",
+__all__ = ["DEFAULT_WEIGHTS", "NO_PHOTOMETRIC", "landmark_trust", "loss_weights", "perceptual_features",
            "loss_function"]
 
 DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha": 1e-3,
@@ -24,6 +24,10 @@ error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01
 alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
 1e-3: 2.99 / 2.88 mm (chosen). Moving only the appearance for the first 50 steps changed
 little (3.01 / 2.93 mm) and was not kept."""
+
+NO_PHOTOMETRIC = {"photo": 0.0, "feat": 0.0}
+"""Weight overrides that turn the photometric terms off: a refinement by the landmark and prior
+terms alone, in the crop camera (the ablations' baseline for what the photometric terms add)."""
 
 
 def landmark_trust(fit, frame: int = 0) -> float:
