@@ -30,6 +30,10 @@ class GARConfig:
     channel_base, channel_max : feature channels at resolution r are
         ``min(channel_max, channel_base // r)`` (StyleGAN2's rule), for G and D alike.
     aux_width : base width of the auxiliary networks N, P, L, R.
+    nim_background : the Normal Injection Module's background gain
+        (:class:`neural.gar.NormalInjection`): True lets features pass where the normal map
+        is empty (hair, neck, scene); False zeroes them there, as the generators trained
+        before the option did (their saved configs load as False).
 
     Losses (paper defaults)
     -----------------------
@@ -63,6 +67,7 @@ class GARConfig:
     channel_base: int = 2048
     channel_max: int = 128
     aux_width: int = 8
+    nim_background: bool = True
     # optimisation
     batch_size: int = 8
     g_lr: float = 2e-3
@@ -126,6 +131,8 @@ class GARConfig:
         d = {k: v for k, v in d.items() if k in known}
         if "betas" in d:
             d["betas"] = tuple(d["betas"])
+        # saved before the option existed: their generators have no background gain
+        d.setdefault("nim_background", False)
         return cls(**d)
 
 

@@ -145,25 +145,36 @@ class NormalInjection(nn.Module):
     """Normal Injection Module: multiplies the features per pixel by the normal map.
 
     Mapping from 3 normal channels to L feature channels (our choice, the paper leaves it
-    open): a learned 1x1 projection ``P`` (L, 3) without bias,
+    open): a learned 1x1 projection ``P`` (L, 3) without bias, plus (``background=True``) a
+    learned per-channel gain ``b`` (L,) where the normal map is empty,
 
-    ``f''_{l,x,y} = f'_{l,x,y} * sum_k P_{l,k} n_{k,x,y}``
+    ``f''_{l,x,y} = f'_{l,x,y} * (sum_k P_{l,k} n_{k,x,y} + b_l (1 - |n_{x,y}|^2))``
 
-    where ``n`` is the normal map resized to the feature resolution. It is linear in ``n``
-    and has no bias, so a zero normal (the background) gives exactly zero injected features,
-    and flipping ``n`` flips them. ``P`` starts with N(0, 1) entries so that ``P n`` has unit
-    variance per channel for any unit normal (Var = sum_k n_k^2 Var P = 1), which keeps the
-    activations at unit scale through the blocks.
+    where ``n`` is the normal map resized to the feature resolution. On the face (unit
+    normals) it is linear in ``n``, so flipping ``n`` flips the injected features. Without
+    ``b`` a zero normal (the background) gives exactly zero features at every layer, which
+    leaves hair, neck and scene nothing but the noise inputs to be drawn from (the generators
+    trained before the option, whose samples show a cloudy texture around a bare face mask);
+    with ``b`` (starting at 1) the background features pass on, styled by the latent.
+    ``1 - |n|^2`` rather than ``1 - |n|`` because a norm has no gradient at zero, and the
+    refinement differentiates through ``n``. ``P`` starts with N(0, 1) entries so that ``P n``
+    has unit variance per channel for any unit normal (Var = sum_k n_k^2 Var P = 1), which
+    keeps the activations at unit scale through the blocks, on the face and (b = 1) off it.
     """
 
-    def __init__(self, channels: int):
+    def __init__(self, channels: int, background: bool = True):
         super().__init__()
         self.projection = nn.Parameter(torch.randn(channels, 3))
+        self.background = nn.Parameter(torch.ones(channels)) if background else None
 
     def normal_features(self, normals: torch.Tensor, size: int) -> torch.Tensor:
-        """(B, 3, H, W) -> ``P n`` (B, L, size, size)."""
+        """(B, 3, H, W) -> ``P n`` (+ ``b (1 - |n|^2)``) (B, L, size, size)."""
         n = resize_normals(normals, size)
-        return torch.einsum("lk,bkxy->blxy", self.projection, n)
+        p = torch.einsum("lk,bkxy->blxy", self.projection, n)
+        if self.background is None:
+            return p
+        empty = (1.0 - (n * n).sum(1, keepdim=True)).clamp(min=0.0)
+        return p + self.background[:, None, None] * empty
 
     def forward(self, features: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
         """features (B, L, h, h), normals (B, 3, H, W) -> (B, L, h, h)."""
@@ -201,16 +212,18 @@ class ToRGB(nn.Module):
 class RenderBlock(nn.Module):
     """One resolution of the generator: two styled layers, each
     ``modulated conv 3x3 -> NormalInjection -> + bias + noise -> leaky ReLU``, then ToRGB.
-    The first convolution upsamples x2 unless ``upsample=False`` (the 4x4 block)."""
+    The first convolution upsamples x2 unless ``upsample=False`` (the 4x4 block);
+    ``background`` is :class:`NormalInjection`'s."""
 
     n_styles = 3   # conv0, conv1, to_rgb
     n_noises = 2
 
-    def __init__(self, in_channels, out_channels, w_dim, upsample=True):
+    def __init__(self, in_channels, out_channels, w_dim, upsample=True, background=True):
         super().__init__()
         self.conv0 = ModulatedConv2d(in_channels, out_channels, 3, w_dim, upsample=upsample)
         self.conv1 = ModulatedConv2d(out_channels, out_channels, 3, w_dim)
-        self.nim0, self.nim1 = NormalInjection(out_channels), NormalInjection(out_channels)
+        self.nim0 = NormalInjection(out_channels, background)
+        self.nim1 = NormalInjection(out_channels, background)
         self.bias0 = nn.Parameter(torch.zeros(1, out_channels, 1, 1))
         self.bias1 = nn.Parameter(torch.zeros(1, out_channels, 1, 1))
         self.noise0, self.noise1 = NoiseInjection(), NoiseInjection()
@@ -243,7 +256,8 @@ class Generator(nn.Module):
         self.input = nn.Parameter(torch.randn(1, config.channels(4), 4, 4))
         self.blocks = nn.ModuleList(
             RenderBlock(config.channels(r // 2) if r > 4 else config.channels(4),
-                        config.channels(r), config.w_dim, upsample=r > 4) for r in res)
+                        config.channels(r), config.w_dim, upsample=r > 4,
+                        background=config.nim_background) for r in res)
         self.register_buffer("w_avg", torch.zeros(config.w_dim))
 
     @property

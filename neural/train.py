@@ -225,10 +225,14 @@ class Trainer:
         except (OSError, RuntimeError, EOFError) as e:
             raise InputError(f"{path}: cannot read checkpoint ({str(e).splitlines()[0]})") from None
         saved = GARConfig.from_dict(ckpt["config"])
-        arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max")
-        if any(getattr(saved, k) != getattr(self.config, k) for k in arch):
-            raise InputError(f"{path}: checkpoint of a different architecture ({saved.name}, "
-                             f"{saved.resolution} px); use another --out folder")
+        arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max",
+                "nim_background")
+        differ = [k for k in arch if getattr(saved, k) != getattr(self.config, k)]
+        if differ:
+            k = differ[0]
+            raise InputError(f"{path}: checkpoint of a different architecture ({k} "
+                             f"{getattr(saved, k)}, not {getattr(self.config, k)}); use another "
+                             f"--out folder, or --set {k}={json.dumps(getattr(saved, k))}")
         for key in ("G", "D", "G_ema", "opt_g", "opt_d"):
             getattr(self, key).load_state_dict(ckpt[key])
         self.step = int(ckpt["step"])

@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch")
 from morphable.errors import InputError  # noqa: E402
 from neural.auxnets import load_aux, save_aux  # noqa: E402
 from neural.auxnets.nets import soft_argmax  # noqa: E402
-from neural.config import get_config  # noqa: E402
+from neural.config import GARConfig, get_config  # noqa: E402
 from neural.gar import (Discriminator, Generator, MinibatchStd, ModulatedConv2d,  # noqa: E402
                         NormalInjection, RenderBlock)
 from neural.losses import (DEFAULT_LAMBDAS, discriminator_loss, generator_adversarial_loss,  # noqa: E402
@@ -88,7 +88,7 @@ def test_modulated_conv_upsample_and_per_sample_kernels():
 
 def test_normal_injection_mapping():
     torch.manual_seed(0)
-    nim = NormalInjection(6)
+    nim = NormalInjection(6, background=False)
     f = torch.randn(2, 6, 8, 8)
     zero = torch.zeros(2, 3, 8, 8)
     assert torch.equal(nim(f, zero), torch.zeros_like(f))
@@ -109,9 +109,42 @@ def test_normal_injection_mapping():
     assert abs(float(p.detach().var()) - 1) < 0.1
 
 
+def test_normal_injection_background_gain():
+    torch.manual_seed(0)
+    nim = NormalInjection(6)
+    literal = NormalInjection(6, background=False)
+    literal.projection.data.copy_(nim.projection.data)
+    with torch.no_grad():
+        nim.background.copy_(torch.linspace(0.5, 2.0, 6))
+    f = torch.randn(2, 6, 8, 8)
+    n = sphere_normals(2, 8)
+    out = nim(f, n)
+    # background pixels: f * b; unit normals on the face: exactly the paper-literal product
+    torch.testing.assert_close(out[:, :, 0, 0], f[:, :, 0, 0] * nim.background)
+    face = n.norm(dim=1) > 0.99
+    torch.testing.assert_close(out.permute(0, 2, 3, 1)[face],
+                               literal(f, n).permute(0, 2, 3, 1)[face])
+    torch.testing.assert_close(nim(f, torch.zeros(2, 3, 8, 8)), f * nim.background[:, None, None])
+    # the refinement differentiates through n: finite gradients in the empty background too
+    n = n.clone().requires_grad_(True)
+    nim(f, n).square().sum().backward()
+    assert torch.isfinite(n.grad).all()
+
+
+def test_generators_saved_before_the_background_gain_load_as_such():
+    cfg = get_config("tiny", **SMALL)
+    assert cfg.nim_background
+    old = {k: v for k, v in cfg.to_dict().items() if k != "nim_background"}
+    assert not GARConfig.from_dict(old).nim_background
+    assert GARConfig.from_dict(cfg.to_dict()).nim_background
+    G = Generator(GARConfig.from_dict(old))
+    assert all(b.nim0.background is None for b in G.blocks)
+    assert "blocks.0.nim0.background" in Generator(cfg).state_dict()
+
+
 def test_zero_normal_map_zeroes_block_features():
     torch.manual_seed(0)
-    block = RenderBlock(8, 8, w_dim=4)
+    block = RenderBlock(8, 8, w_dim=4, background=False)
     x = torch.randn(2, 8, 4, 4)
     ws = torch.randn(2, 3, 4)
     with torch.no_grad():
@@ -126,6 +159,9 @@ def test_zero_normal_map_zeroes_block_features():
     n = sphere_normals(2, 8)
     f = block.nim0(torch.randn(2, 8, 8, 8), n)
     assert torch.equal(f[:, :, 0, 0], torch.zeros(2, 8)) and f[:, :, 4, 4].abs().sum() > 0
+    # with the background gain the empty normal map still carries the features
+    out, _ = RenderBlock(8, 8, w_dim=4)(x, None, torch.zeros(2, 3, 8, 8), ws, zero_noise)
+    assert out.abs().sum() > 0
 
 
 def test_generator_latent_noise_and_determinism():

@@ -116,3 +116,24 @@ def test_time_budget_stops_with_checkpoint(tmp_path, data_dir):
         torch.set_num_threads(threads)
     assert torch.load(out / "checkpoint.pt", weights_only=True)["step"] == 0
     assert (out / "samples" / "step-000000.png").is_file() and _steps(out) == []
+
+
+def test_resume_with_another_architecture_one_line_error(uninterrupted, tmp_path, capsys):
+    import shutil
+
+    from neural.train import main
+
+    out = tmp_path / "other"
+    shutil.copytree(uninterrupted, out)
+    before = (out / "checkpoint.pt").read_bytes()
+    threads = torch.get_num_threads()
+    try:
+        at = ARGS.index("--untrained-aux")        # one more --set item
+        rc = main(ARGS[:at] + ["nim_background=false"] + ARGS[at:]
+                  + ["--out", str(out), "--steps", str(STEPS + 2)])
+    finally:
+        torch.set_num_threads(threads)
+    err = capsys.readouterr().err.strip().splitlines()[-1]     # after the untrained-aux warning
+    assert rc == 2 and f"error: {out / 'checkpoint.pt'}: " in err, err
+    assert "nim_background True, not False" in err and "--set nim_background=true" in err
+    assert (out / "checkpoint.pt").read_bytes() == before
