@@ -39,6 +39,10 @@ class GARConfig:
     -----------------------
     lambda_n = 2, lambda_ldmk = 2, lambda_id = 1, lambda_adv = 1; ``r1_gamma`` weights the R1
     penalty, applied every ``r1_every`` discriminator steps (lazy regularisation).
+    contrastive_every : the landmark and identity contrastive terms in every k-th generator
+    step only, weighted k (lazy, as R1 is: the same objective in expectation). Those terms
+    render 2B of a step's 3B images, so k = 4 makes a CPU step 1.5-1.7x as fast
+    (docs/neural.md); 1 (default) computes them in every step.
     landmark_set : the landmarks L_ldmk compares: ``"model"`` (those the 3DMM defines, SFM:
     50 of 68), ``"all"`` (68) or ``"auto"``: the model's on synthetic data; on real photos
     the list the L network's checkpoint states (``meta["landmark_index"]``), else the model's
@@ -75,6 +79,7 @@ class GARConfig:
     betas: tuple = (0.0, 0.99)
     r1_gamma: float = 1.0
     r1_every: int = 16
+    contrastive_every: int = 1
     lambda_n: float = 2.0
     lambda_ldmk: float = 2.0
     lambda_id: float = 1.0
@@ -98,6 +103,9 @@ class GARConfig:
         r = self.resolution
         if r < 8 or r & (r - 1):
             raise ValueError(f"config {self.name!r}: resolution must be a power of two >= 8, got {r}")
+        if self.contrastive_every < 1:
+            raise ValueError(f"config {self.name!r}: contrastive_every must be >= 1, got "
+                             f"{self.contrastive_every}")
         if self.landmark_set not in ("auto", "model", "all"):
             raise ValueError(f"config {self.name!r}: landmark_set must be auto, model or all, "
                              f"got {self.landmark_set!r}")

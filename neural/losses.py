@@ -106,6 +106,8 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     normals_a, normals_b : (B, 3, H, W) normal maps of the same identities under two
         different expressions/poses
     z1, z2 : (B, z_dim) two latents
+    lambdas : term weights (default :data:`DEFAULT_LAMBDAS`); a term weighted 0 is neither
+        computed nor rendered for (without L_ldmk and L_id, G renders B images, not 3B)
     landmark_index : optional (K,) ids of the landmarks L_ldmk compares (e.g. those the 3DMM
         defines, which are the ones the synthetic L network was trained on); default all
     augment : optional differentiable image transform applied to the fakes before D (the
@@ -118,9 +120,15 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     """
     lam = {**DEFAULT_LAMBDAS, **(lambdas or {})}
     B = normals_a.shape[0]
-    # one batched pass: (n_a, z1) for L_n and L_adv, (n_a, z2) for L_ldmk, (n_b, z1) for L_id
-    images = G(torch.cat([normals_a, normals_a, normals_b]), torch.cat([z1, z2, z1]))
-    img_a1, img_a2, img_b1 = images.split(B)
+    # one batched pass: (n_a, z1) for L_n and L_adv, (n_a, z2) for L_ldmk, (n_b, z1) for L_id;
+    # a term weighted 0 adds no images to it (the lazy steps of Trainer.train_step)
+    pairs = [(normals_a, z1)] + [(n, z) for key, n, z in (("ldmk", normals_a, z2),
+                                                          ("id", normals_b, z1)) if lam[key]]
+    images = G(torch.cat([n for n, _ in pairs]), torch.cat([z for _, z in pairs]))
+    chunks = list(images.split(B))
+    img_a1 = chunks.pop(0)
+    img_a2 = chunks.pop(0) if lam["ldmk"] else None
+    img_b1 = chunks.pop(0) if lam["id"] else None
     terms = {}
     if lam["n"]:
         with torch.no_grad():

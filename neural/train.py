@@ -2,12 +2,12 @@
 
 Each step: sample pairs of normal maps of the same identities (synthetic renders, or with
 ``--data PACK`` the fits of real photos, :class:`neural.real_faces.RealFaces`), one
-generator step on ``L_GAR`` (:func:`neural.losses.generator_losses`), one discriminator
-step (logistic loss, lazy R1 every ``r1_every`` steps; with ``--data`` its real images are
-other photos of the pack, and both its inputs pass through the differentiable augmentation
-of :mod:`neural.augment`), and an exponential moving average of the generator (``G_ema``,
-used for samples and the saved weights). ``--device cuda --amp bf16 --channels-last`` is
-the GPU recipe (``scripts/train_gar_gpu.sh``).
+generator step on ``L_GAR`` (:func:`neural.losses.generator_losses`; its contrastive terms
+every ``contrastive_every`` steps), one discriminator step (logistic loss, lazy R1 every
+``r1_every`` steps; with ``--data`` its real images are other photos of the pack, and both
+its inputs pass through the differentiable augmentation of :mod:`neural.augment`), and an
+exponential moving average of the generator (``G_ema``, used for samples and the saved
+weights). ``--device cuda --amp bf16 --channels-last`` is the GPU recipe (``make gar-gpu``).
 
 Reproducible and resumable: step ``k`` draws its data, latents and noise from seeds
 ``(seed, k)``, and ``out/checkpoint.pt`` (written atomically every ``checkpoint_every``
@@ -281,12 +281,17 @@ class Trainer:
         z2 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
         augment = self._augment()
 
-        # generator
+        # generator; the contrastive terms lazily, every contrastive_every steps, weighted
+        # by the interval
+        k = cfg.contrastive_every
+        lambdas = dict(cfg.lambdas)
+        for key in ("ldmk", "id"):
+            lambdas[key] *= k if self.step % k == 0 else 0
         self.G.train()
         self.D.requires_grad_(False)
         with self._autocast():
             total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
-                                                  batch["normals_b"], z1, z2, cfg.lambdas,
+                                                  batch["normals_b"], z1, z2, lambdas,
                                                   landmark_index=self.landmark_index,
                                                   augment=augment)
         self.opt_g.zero_grad(set_to_none=True)

@@ -246,13 +246,17 @@ def test_r1_penalty_and_total():
         total_loss({"bogus": torch.tensor(1.0)})
 
 
-def test_generator_losses_gradients():
+def small_gar_batch():
+    """A small untrained G, D, untrained aux networks, and a batch of 2: normals, z1, z2."""
     torch.manual_seed(0)
     cfg = get_config("tiny", **SMALL)
     G, D = Generator(cfg), Discriminator(cfg)
     aux = {k: load_aux(k, pretrained=False, width=4, resolution=32) for k in "NPLR"}
-    n = sphere_normals(2, 32)
-    z1, z2 = torch.randn(2, cfg.z_dim), torch.randn(2, cfg.z_dim)
+    return G, D, aux, sphere_normals(2, 32), torch.randn(2, cfg.z_dim), torch.randn(2, cfg.z_dim)
+
+
+def test_generator_losses_gradients():
+    G, D, aux, n, z1, z2 = small_gar_batch()
     total, terms, fake = generator_losses(G, D, aux, n, n.flip(-1), z1, z2,
                                           landmark_index=torch.arange(17, 68))
     assert set(terms) == {"n", "ldmk", "id", "adv"} and fake.shape == (2, 3, 32, 32)
@@ -264,6 +268,20 @@ def test_generator_losses_gradients():
     # lambda = 0 drops a term entirely
     _, terms, _ = generator_losses(G, D, aux, n, n, z1, z2, {"n": 0.0, "id": 0.0})
     assert set(terms) == {"ldmk", "adv"}
+
+
+def test_generator_losses_render_only_what_the_terms_need():
+    G, D, aux, n, z1, z2 = small_gar_batch()
+    rendered = []
+    G.register_forward_hook(lambda module, args, out: rendered.append(out.shape[0]))
+    for lambdas, images in (({}, 6), ({"ldmk": 0.0}, 4), ({"id": 0.0}, 4),
+                            ({"ldmk": 0.0, "id": 0.0}, 2)):
+        torch.manual_seed(1)
+        _, terms, fake = generator_losses(G, D, aux, n, n.flip(-1), z1, z2, lambdas)
+        assert rendered.pop() == images and fake.shape == (2, 3, 32, 32)
+        assert {"n", "adv"} <= set(terms)
+        assert ("ldmk" in terms) == (lambdas.get("ldmk", 1) != 0)
+        assert ("id" in terms) == (lambdas.get("id", 1) != 0)
 
 
 # --- auxiliary networks ------------------------------------------------------------------

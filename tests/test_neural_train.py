@@ -94,6 +94,27 @@ def test_kill_and_resume_matches_uninterrupted(uninterrupted, tmp_path):
                                        msg=f"{key}.{name} differs after resume")
 
 
+def test_lazy_contrastive_terms(tmp_path, data_dir):
+    from neural.train import main
+
+    out = tmp_path / "lazy"
+    threads = torch.get_num_threads()
+    try:
+        at = ARGS.index("--untrained-aux")
+        assert main(ARGS[:at] + ["contrastive_every=3"] + ARGS[at:]
+                    + ["--out", str(out), "--steps", "7"]) == 0
+        assert main(ARGS[:at] + ["contrastive_every=0"] + ARGS[at:]
+                    + ["--out", str(tmp_path / "zero"), "--steps", "1"]) == 2
+    finally:
+        torch.set_num_threads(threads)
+    rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    # step k (logged as k + 1) has the terms when k % 3 == 0
+    assert [r["step"] for r in rows if "ldmk" in r and "id" in r] == [1, 4, 7]
+    assert all({"n", "adv", "d"} <= set(r) for r in rows)
+    cfg = torch.load(out / "generator.pt", weights_only=True)["config"]
+    assert cfg["contrastive_every"] == 3
+
+
 def test_bad_arguments_one_line_error(tmp_path, capsys):
     from neural.train import main
 
