@@ -122,25 +122,26 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     B = normals_a.shape[0]
     # one batched pass: (n_a, z1) for L_n and L_adv, (n_a, z2) for L_ldmk, (n_b, z1) for L_id;
     # a term weighted 0 adds no images to it (the lazy steps of Trainer.train_step)
-    pairs = [(normals_a, z1)] + [(n, z) for key, n, z in (("ldmk", normals_a, z2),
-                                                          ("id", normals_b, z1)) if lam[key]]
-    images = G(torch.cat([n for n, _ in pairs]), torch.cat([z for _, z in pairs]))
-    chunks = list(images.split(B))
-    img_a1 = chunks.pop(0)
-    img_a2 = chunks.pop(0) if lam["ldmk"] else None
-    img_b1 = chunks.pop(0) if lam["id"] else None
+    pairs = {"a1": (normals_a, z1)}
+    if lam["ldmk"]:
+        pairs["a2"] = (normals_a, z2)
+    if lam["id"]:
+        pairs["b1"] = (normals_b, z1)
+    normals, z = (torch.cat(x) for x in zip(*pairs.values()))
+    image = dict(zip(pairs, G(normals, z).split(B)))
+    img_a1 = image["a1"]
     terms = {}
     if lam["n"]:
         with torch.no_grad():
             mask = aux["P"](img_a1)
         terms["n"] = normal_loss(normals_a, aux["N"](img_a1), mask)
     if lam["ldmk"]:
-        lm = aux["L"].landmarks(torch.cat([img_a1, img_a2]))
+        lm = aux["L"].landmarks(torch.cat([img_a1, image["a2"]]))
         if landmark_index is not None:
             lm = lm[:, landmark_index]
-        terms["ldmk"] = landmark_loss(*lm.split(B), image_size=images.shape[-1])
+        terms["ldmk"] = landmark_loss(*lm.split(B), image_size=img_a1.shape[-1])
     if lam["id"]:
-        emb = aux["R"](torch.cat([img_a1, img_b1]))
+        emb = aux["R"](torch.cat([img_a1, image["b1"]]))
         terms["id"] = identity_loss(*emb.split(B))
     if lam["adv"]:
         terms["adv"] = generator_adversarial_loss(

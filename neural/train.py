@@ -227,9 +227,8 @@ class Trainer:
         saved = GARConfig.from_dict(ckpt["config"])
         arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max",
                 "nim_background")
-        differ = [k for k in arch if getattr(saved, k) != getattr(self.config, k)]
-        if differ:
-            k = differ[0]
+        k = next((k for k in arch if getattr(saved, k) != getattr(self.config, k)), None)
+        if k is not None:
             raise InputError(f"{path}: checkpoint of a different architecture ({k} "
                              f"{getattr(saved, k)}, not {getattr(self.config, k)}); use another "
                              f"--out folder, or --set {k}={json.dumps(getattr(saved, k))}")
