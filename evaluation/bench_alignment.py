@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from morphable.cli.common import add_loss_weight_argument
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
@@ -165,23 +166,27 @@ def aflw_angles(euler_deg) -> np.ndarray:
     return np.stack([-e[:, 1], -e[:, 0], -e[:, 2]], -1)
 
 
-def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = None):
+def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = None,
+            loss_weights: dict | None = None):
     """``fit -> refined fit`` for the photo ``img``: a callable ``(img, fit) -> fit`` that
     inverts ``renderer`` ("" for none: the fit unchanged) for ``steps`` Adam steps, made
-    with ``renderer_options[renderer]`` (e.g. ``{"gar": {"weights": path}}``)."""
+    with ``renderer_options[renderer]`` (e.g. ``{"gar": {"weights": path}}``), with the
+    refinement's loss weights overridden by ``loss_weights``
+    (:data:`morphable.refinement.DEFAULT_WEIGHTS`)."""
     if not renderer:
         return lambda img, fit: fit
     from morphable.refinement import refine
     from morphable.renderer_plugins import get_renderer
 
     r = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
-    return lambda img, fit: refine(img, fit, r, steps=steps)[0]
+    return lambda img, fit: refine(img, fit, r, steps=steps, weights=loss_weights)[0]
 
 
 def add_refine_arguments(p) -> None:
-    """``--steps``, ``--gar-weights`` and ``--gar-region`` of the refined methods, on the
-    parser ``p``."""
+    """``--steps``, ``--loss-weight``, ``--gar-weights`` and ``--gar-region`` of the refined
+    methods, on the parser ``p``."""
     p.add_argument("--steps", type=int, default=100, help="Adam steps of the refined methods")
+    add_loss_weight_argument(p)
     p.add_argument("--gar-weights", help="generator.pt of the gar renderer (default: the committed one)")
     p.add_argument("--gar-region", choices=("crop", "face"), default="crop",
                    help="pixels gar's photometric terms compare: the whole crop (default) or "
@@ -189,18 +194,23 @@ def add_refine_arguments(p) -> None:
 
 
 def refine_options(args) -> dict:
-    """``steps`` and ``renderer_options`` (:func:`refiner`'s keywords) from the parsed
-    :func:`add_refine_arguments`; a one-line InputError when the weights file is missing."""
+    """``steps``, ``renderer_options`` and ``loss_weights`` (:func:`refiner`'s keywords) from
+    the parsed :func:`add_refine_arguments`; a one-line InputError when the weights file is
+    missing or a loss weight is not one (:func:`morphable.refinement.parse_loss_weights`)."""
+    from morphable.refinement import parse_loss_weights
+
     if args.gar_weights and not Path(args.gar_weights).is_file():
         raise InputError(f"{args.gar_weights}: --gar-weights file not found")
     gar = {"weights": args.gar_weights} if args.gar_weights else {}
     if args.gar_region != "crop":
         gar["photometric_region"] = args.gar_region
-    return {"steps": args.steps, "renderer_options": {"gar": gar} if gar else None}
+    return {"steps": args.steps, "renderer_options": {"gar": gar} if gar else None,
+            "loss_weights": parse_loss_weights(args.loss_weight, "--loss-weight") or None}
 
 
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
-               steps: int = 100, renderer_options: dict | None = None) -> dict:
+               steps: int = 100, renderer_options: dict | None = None,
+               loss_weights: dict | None = None) -> dict:
     """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
     renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo: ``pred`` (N, 68, 2) px (NaN rows: no face),
     ``ms`` (N,) wall ms (NaN for failures), ``euler_deg`` (N, 3) for fits (NaN otherwise),
@@ -216,7 +226,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
 
     method, _, renderer = method.partition("+")
     detector = method.removeprefix("ours-")
-    refined = refiner(renderer, steps, renderer_options)
+    refined = refiner(renderer, steps, renderer_options, loss_weights)
     N = len(paths)
     pred = np.full((N, 68, 2), np.nan)
     ms = np.full(N, np.nan)
@@ -342,7 +352,7 @@ def main(argv=None):
     report = {"n": a.n, "model": a.model}
     refine = refine_options(a)
     if any("+" in m for m in a.methods):
-        report.update(steps=a.steps, gar_weights=a.gar_weights)
+        report.update(steps=a.steps, gar_weights=a.gar_weights, loss_weights=refine["loss_weights"])
     if "aflw2000" in a.set:
         report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, **refine)
     if "300w" in a.set:

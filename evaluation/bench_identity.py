@@ -59,7 +59,8 @@ def london_pairs(root: Path, n: int | None = None) -> list:
 
 
 def identity_meshes(method: str, paths, model, steps: int = 100,
-                    renderer_options: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                    renderer_options: dict | None = None,
+                    loss_weights: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """(P, V, 3) mm identity meshes of the photos (NaN where the method failed), (P,) wall ms,
     and {photo: one-line reason} of the failures. A method ``ours-<detector>+<renderer>``
     refines each fit (:func:`evaluation.bench_alignment.refiner`) before taking its identity."""
@@ -70,7 +71,7 @@ def identity_meshes(method: str, paths, model, steps: int = 100,
 
     method, _, renderer = method.partition("+")
     fitter, detector = method.split("-")
-    refined = refiner(renderer, steps, renderer_options)
+    refined = refiner(renderer, steps, renderer_options, loss_weights)
     eos = None
     if fitter == "eos":
         from .peers import EosFitter
@@ -137,7 +138,8 @@ def main(argv=None):
     refine = refine_options(a)
     model = load_model("sfm")
     pairs = london_pairs(a.data or data_root(), a.n)
-    report = {"people": len(pairs), "model": "sfm", "methods": {}, "steps": a.steps, "gar_weights": a.gar_weights}
+    report = {"people": len(pairs), "model": "sfm", "methods": {}, "steps": a.steps, "gar_weights": a.gar_weights,
+              "loss_weights": refine["loss_weights"]}
     lines = ["| method | within (mm) | between (mm) | identification | identification, people 21-102 "
              "| failures | ms |", "|---|---|---|---|---|---|---|"]
     for m in a.methods:

@@ -6,6 +6,7 @@ import pytest
 from evaluation.bench_alignment import (aflw_angles, box_size, eye_distance, load_300w,
                                         load_aflw2000, nme, yaw_table)
 from evaluation.bench_identity import consistency, london_pairs
+from morphable.errors import InputError
 
 
 def test_nme_and_normalisers():
@@ -96,11 +97,16 @@ def test_refine_options_carry_the_gar_region(tmp_path):
 
     p = argparse.ArgumentParser()
     add_refine_arguments(p)
-    assert refine_options(p.parse_args([])) == {"steps": 100, "renderer_options": None}
+    assert refine_options(p.parse_args([])) == {"steps": 100, "renderer_options": None,
+                                                "loss_weights": None}
     w = tmp_path / "g.pt"
     w.write_bytes(b"")
-    opts = refine_options(p.parse_args(["--gar-weights", str(w), "--gar-region", "face", "--steps", "5"]))
+    opts = refine_options(p.parse_args(["--gar-weights", str(w), "--gar-region", "face", "--steps", "5",
+                                        "--loss-weight", "lmk=10", "photo=0"]))
     assert opts == {"steps": 5, "renderer_options": {"gar": {"weights": str(w),
-                                                             "photometric_region": "face"}}}
+                                                             "photometric_region": "face"}},
+                    "loss_weights": {"lmk": 10.0, "photo": 0.0}}
     with pytest.raises(SystemExit):
         p.parse_args(["--gar-region", "hair"])
+    with pytest.raises(InputError, match="--loss-weight 'lmk=-1'"):
+        refine_options(p.parse_args(["--loss-weight", "lmk=-1"]))

@@ -540,6 +540,10 @@ def test_command_on_several_video_draws(tmp_path, james_paths):
     r = run_cli("--synthetic-scan", "ict", "--methods", "gar", "--gar-steps", "0",
                 "--report", tmp_path / "g.json")
     assert r.returncode == 2 and "--gar-steps" in r.stderr and not (tmp_path / "g.json").exists()
+    r = run_cli("--synthetic-scan", "ict", "--methods", "gar", "--gar-loss-weight", "hair=1",
+                "--report", tmp_path / "g.json")
+    assert r.returncode == 2 and "--gar-loss-weight 'hair=1'" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "g.json").exists()
 
 def test_error_vs_runtime_report(james, sfm, tmp_path, monkeypatch):
     from evaluation import report
@@ -668,6 +672,11 @@ def test_gar_method_refines_rendered_frames(james, sfm, random_gar):
                            efforts={"gar": {"steps": 2, "region": "face"}})
     face = face["methods"]["gar"]["outdoor"]
     assert np.isfinite(face["mean_mm"]) and face["mean_mm"] != gar["mean_mm"]
+    # the refinement's loss weights (--gar-loss-weight): the photometric terms off
+    refit, _ = run_protocol(james, sfm, ["gar"], ["outdoor"], n_sampled=2, n_frames=6,
+                            efforts={"gar": {"steps": 2, "weights": {"photo": 0.0, "feat": 0.0}}})
+    refit = refit["methods"]["gar"]["outdoor"]
+    assert np.isfinite(refit["mean_mm"]) and refit["mean_mm"] != gar["mean_mm"]
 
 
 def test_subjects_wear_a_photos_colours(sfm, data_dir):

@@ -187,10 +187,22 @@ def test_cli_fit_refine_and_edit(data_dir, tmp_path, capsys):
                  "--report", str(report), "--out-mesh", str(mesh), "--refine-render", str(png)]) == 0
     rep = json.loads(report.read_text())
     assert len(rep["refine"][0]["photometric_loss"]) == 6 and mesh.is_file() and png.is_file()
+    # loss weight overrides reach the refinement; without --refine, or wrong, a one-line error
+    assert main(["fit", str(img), "--landmarks", str(pts), "--refine", "classical", "--steps", "1",
+                 "--loss-weight", "lmk=10", "photo=0", "--report", str(report)]) == 0
+    w = json.loads(report.read_text())["refine"][0]["loss_weights"]
+    assert w["lmk"] == pytest.approx(10.0) and w["photo"] == 0.0     # annotated: full trust
+    capsys.readouterr()
+    for extra in (["--loss-weight", "lmk=10"], ["--refine", "classical", "--loss-weight", "hair=1"]):
+        assert main(["fit", str(img), "--landmarks", str(pts), *extra,
+                     "--report", str(tmp_path / "no.json")]) == 2
+        err = capsys.readouterr().err
+        assert "--loss-weight" in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "no.json").exists()
     out = tmp_path / "edit.png"
     assert main(["edit", str(img), "--landmarks", str(pts), "--renderer", "classical",
                  "--steps", "3", "--yaw", "20", "--expression", "happiness=0.8",
-                 "--out", str(out), "--zoom", "1"]) == 0
+                 "--out", str(out), "--zoom", "1", "--loss-weight", "lmk=10"]) == 0
     from PIL import Image
 
     assert Image.open(out).size == (3 * 64, 64)
@@ -252,6 +264,47 @@ def test_refine_frames_one_mesh_per_frame(tmp_path):
     # each frame's mesh is near its own face, not the other one
     d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
     assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
+
+
+def test_refine_frames_takes_the_face_meshs_478_points():
+    # a face-mesh video is refined from the 478-point fit itself, not from its 68 (the
+    # Florence gar method's start is then ours-independent's fit of the same points)
+    from evaluation.gar_ablation import held_out_faces
+    from morphable.fitting.schemes import load_scheme
+    from morphable.refinement import refine_frames
+
+    model, faces = held_out_faces(2, image_size=96)
+    images = np.stack([f["image"] for f in faces])
+    fit68 = fit_landmarks(model, np.stack([f["landmarks"] for f in faces]), [96, 96],
+                          shared_identity=False)
+    scheme = load_scheme(model)
+    lms = np.stack([cam.project(scheme.points(f["vertices"]))
+                    for cam, f in zip(fit68.cameras, faces)])
+    assert lms.shape == (2, 478, 2)
+    verts, reports = refine_frames(model, images, lms, "classical", steps=2)
+    assert verts.shape == (2, model.n_vertices, 3) and np.isfinite(verts).all()
+    assert all(r["loss_weights"]["photo"] == 1.0 for r in reports)
+    d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
+    assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
+    # weight overrides reach every frame's refinement
+    _, reports = refine_frames(model, images, lms, "classical", steps=1, weights={"photo": 0.0})
+    assert all(r["loss_weights"]["photo"] == 0.0 for r in reports)
+
+
+def test_loss_weights_parse_from_the_command_line():
+    from morphable.refinement import DEFAULT_WEIGHTS, parse_loss_weights
+
+    assert parse_loss_weights(["photo=0", "lmk=10", "alpha=1e-2"]) == {
+        "photo": 0.0, "lmk": 10.0, "alpha": 0.01}
+    assert parse_loss_weights(None) == {}
+    for bad, text in ((["hair=1"], "KEY one of photo"), (["photo"], "expected KEY=VALUE"),
+                      (["photo=1", "photo=2"], "photo given twice"),
+                      (["feat=-1"], "finite number >= 0"), (["feat=nan"], "finite number >= 0"),
+                      (["feat=x"], "finite number >= 0")):
+        with pytest.raises(InputError, match=text) as e:
+            parse_loss_weights(bad, "--gar-loss-weight")
+        assert str(e.value).startswith("--gar-loss-weight") and "\n" not in str(e.value)
+    assert set(parse_loss_weights([f"{k}=1" for k in DEFAULT_WEIGHTS])) == set(DEFAULT_WEIGHTS)
 
 
 def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):

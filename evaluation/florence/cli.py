@@ -15,11 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from morphable.cli.common import add_detector_arguments
+from morphable.cli.common import add_detector_arguments, add_loss_weight_argument
 from morphable.detection import resolve_detectors
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from morphable.metrics import CROP_RADIUS_MM
+from morphable.refinement import parse_loss_weights
 
 from ..scans import UNITS, load_scan, photo_colors
 from ..videos import CONDITIONS
@@ -87,6 +88,7 @@ def _parser():
     p.add_argument("--gar-region", choices=("crop", "face"),
                    help="gar: pixels its photometric terms compare, the whole crop (default) "
                         "or the fitted face")
+    add_loss_weight_argument(p, "--gar-loss-weight", "gar: refinement")
     p.add_argument("--radius", type=float, default=CROP_RADIUS_MM, help="crop radius, mm")
     p.add_argument("--icp-scale", action="store_true", help="let ICP change the scale too")
     p.add_argument("--no-icp", action="store_true", help="landmark alignment only")
@@ -166,6 +168,9 @@ def main(argv=None) -> int:
         efforts["gar"] = {"steps": args.gar_steps}
     if args.gar_region is not None:
         efforts.setdefault("gar", {})["region"] = args.gar_region
+    if args.gar_loss_weight:
+        efforts.setdefault("gar", {})["weights"] = parse_loss_weights(args.gar_loss_weight,
+                                                                      "--gar-loss-weight")
     if args.plot:
         from evaluation.plots import check_plot_path
 

@@ -304,11 +304,13 @@ def gar_refiner():
 
 
 class Gar(Method):
-    """Each frame's landmark fit (the one :class:`OursIndependent` makes of it, with the
-    camera and noise defaults of :class:`Ours`) refined by inverting the GAR renderer on the
-    frame itself (:func:`morphable.refinement.refine_frames`), then averaged. ``settings``:
+    """Each frame's landmark fit (the one :class:`OursIndependent` makes of it: the same
+    points, the face mesh's 478 when it detected them, with the camera and noise defaults of
+    :class:`Ours`) refined by inverting the GAR renderer on the frame itself
+    (:func:`morphable.refinement.refine_frames`), then averaged. ``settings``:
     ``steps`` (refinement steps, default 100), ``region`` (the renderer's
-    ``photometric_region``, default "crop"). The renderer is loaded once per run."""
+    ``photometric_region``, default "crop"), ``weights`` (overrides of the refinement's
+    :data:`~morphable.refinement.DEFAULT_WEIGHTS`). The renderer is loaded once per run."""
 
     name = "gar"
     needs_images = True
@@ -335,8 +337,8 @@ class Gar(Method):
         # the region only picks the pixel mask: one loaded generator serves either
         self.renderer.photometric_region = settings.get("region", "crop")
         verts, reports = self.refine_frames(
-            self.model, np.asarray(frames.images), frames.ibug68(), self.renderer,
-            steps=int(settings.get("steps", 100)),
+            self.model, np.asarray(frames.images), frames.landmarks, self.renderer,
+            steps=int(settings.get("steps", 100)), weights=settings.get("weights"),
             fit_options=_video_fit_options({}, frames.focal_px, frames.detected))
         dt = time.perf_counter() - t
         return Reconstruction.from_vertices(self.model, verts.mean(0), dt, len(frames), {

@@ -37,6 +37,16 @@ def add_detector_arguments(parser) -> None:
                              "(facemesh), hog or cnn (dlib); default auto: its own default")
 
 
+def add_loss_weight_argument(parser, flag: str = "--loss-weight", what: str = "refinement") -> None:
+    """``KEY=VALUE`` overrides of the refinement's loss weights
+    (:data:`morphable.refinement.DEFAULT_WEIGHTS`); read them with
+    :func:`morphable.refinement.parse_loss_weights`."""
+    parser.add_argument(flag, nargs="+", metavar="KEY=VALUE",
+                        help=f"{what} loss weights instead of the defaults "
+                             "(morphable.refinement.DEFAULT_WEIGHTS), e.g. lmk=10 for detected "
+                             "landmarks (docs/neural.md)")
+
+
 def landmark_std_arg(text: str):
     """argparse type of ``--landmark-std``: a noise > 0 in px, or "auto"."""
     import argparse

@@ -10,7 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_detector_arguments, add_model_argument, model_from, parse_weights, renderer_options
+from .common import (add_detector_arguments, add_loss_weight_argument, add_model_argument, model_from,
+                     parse_weights, renderer_options)
 
 
 def add_parser(sub):
@@ -23,6 +24,7 @@ def add_parser(sub):
     add_model_argument(p)
     p.add_argument("--renderer", choices=("gar", "classical"), default="gar")
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
+    add_loss_weight_argument(p)
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
                                                     "(default: neural/weights/inverter_tiny.pt if present)")
     p.add_argument("--yaw", type=float, help="new yaw, degrees (default: the recovered one)")
@@ -56,17 +58,19 @@ def run(args):
         w = parse_weights(model, [item])          # validates the name and the number
         name = item.partition("=")[0]
         expression[name] = w[model.expression_index(name)]
+    from ..refinement import edit, parse_loss_weights, refine
+
+    weights = parse_loss_weights(args.loss_weight, "--loss-weight")
     options = renderer_options(args.inverter, what="edit")
     from ..detection import read_image
     from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
     from ..raster import save_image_png
-    from ..refinement import edit, refine
 
     res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model,
                        landmark_detector=args.landmark_detector, face_detector=args.face_detector)
     fit, report, state = refine(read_image(args.image), res, args.renderer, steps=args.steps,
-                                renderer_options=options, return_state=True)
+                                weights=weights, renderer_options=options, return_state=True)
     edited = edit(state, yaw=args.yaw, pitch=args.pitch, roll=args.roll, expression=expression)
     img = edited if args.only_edit else np.concatenate([state.target, state.rendered, edited], 1)
     img = img.repeat(args.zoom, 0).repeat(args.zoom, 1)

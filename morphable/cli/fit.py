@@ -12,7 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_fitting_arguments, add_model_argument, model_from, renderer_options
+from .common import (add_fitting_arguments, add_loss_weight_argument, add_model_argument, model_from,
+                     renderer_options)
 
 
 def add_parser(sub):
@@ -37,6 +38,7 @@ def add_parser(sub):
                    help="then refine by inverting a renderer (needs the neural extra; "
                         "gar: generator weights, see neural/README.md)")
     p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
+    add_loss_weight_argument(p, what="--refine")
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
                                                     "(default: neural/weights/inverter_tiny.pt if present)")
     p.add_argument("--refine-render", metavar="PNG",
@@ -46,6 +48,7 @@ def add_parser(sub):
 
 def run(args):
     from ..fitting.files import fit_files, write_fit
+    from ..refinement import parse_loss_weights
 
     if args.overlay:
         from ..overlay import check_overlay_path
@@ -63,6 +66,9 @@ def run(args):
         raise InputError(f"--steps must be >= 0, got {args.steps}")
     if args.refine_render and not args.refine:
         raise InputError("--refine-render needs --refine")
+    if args.loss_weight and not args.refine:
+        raise InputError("--loss-weight needs --refine")
+    weights = parse_loss_weights(args.loss_weight, "--loss-weight")
     images = [Path(p) for p in args.images]
     res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
                             focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
@@ -70,7 +76,7 @@ def run(args):
                             landmark_detector=args.landmark_detector, face_detector=args.face_detector,
                             landmark_std_px=args.landmark_std)
     if args.refine:
-        res, report = _refine(args, res, report, images)
+        res, report = _refine(args, res, report, images, weights)
     if args.overlay:  # first: drawing is the likeliest step to fail
         from ..overlay import write_overlays
 
@@ -87,8 +93,9 @@ def run(args):
     return 0
 
 
-def _refine(args, res, report, images):
-    """Photometric refinement of every frame (:func:`morphable.refinement.refine`)."""
+def _refine(args, res, report, images, weights):
+    """Photometric refinement of every frame (:func:`morphable.refinement.refine`) with the
+    loss weight overrides ``weights``."""
     from ..detection import read_image
     from ..refinement import refine
 
@@ -96,7 +103,7 @@ def _refine(args, res, report, images):
     runs = []
     for i, path in enumerate(images):
         res, rep, state = refine(read_image(path), res, args.refine, steps=args.steps, frame=i,
-                                 renderer_options=options, return_state=True)
+                                 weights=weights, renderer_options=options, return_state=True)
         runs.append(rep)
         if i == 0 and args.refine_render:
             import numpy as np

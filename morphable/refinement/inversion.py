@@ -198,7 +198,8 @@ def refine_frames(model, images, landmarks, renderer="gar", *, steps: int = 100,
     ----------
     model : MorphableModel
     images : (N, H, W, 3) float [0, 1] or uint8, one image per frame
-    landmarks : (N, 68, 2) px, NaN where missing
+    landmarks : (N, L, 2) px, NaN where missing: iBUG-68 (L = 68) or the face mesh's
+        (L = 478), as :func:`~morphable.fitting.fit_landmarks` takes them
     renderer, steps, options : as :func:`refine` (the renderer is loaded once, with its
         inverter for gar)
     n_iterations : of the landmark fit
