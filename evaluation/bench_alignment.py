@@ -362,7 +362,8 @@ def main(argv=None):
         tmp.write_text(json.dumps(report, indent=1))
     print(format_tables(report))
     print(f"\nwrote {a.report}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

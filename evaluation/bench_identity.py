@@ -161,7 +161,8 @@ def main(argv=None):
         tmp.write_text(json.dumps(report, indent=1))
     print("\n".join(lines))
     print(f"\nwrote {a.report}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -43,8 +43,8 @@ def add_loss_weight_argument(parser, flag: str = "--loss-weight", what: str = "r
     :func:`morphable.refinement.parse_loss_weights`."""
     parser.add_argument(flag, nargs="+", metavar="KEY=VALUE",
                         help=f"{what} loss weights instead of the defaults "
-                             "(morphable.refinement.DEFAULT_WEIGHTS), e.g. lmk=10 for detected "
-                             "landmarks (docs/neural.md)")
+                             "(morphable.refinement.DEFAULT_WEIGHTS), e.g. lmk=10 photo=0; what "
+                             "they do: docs/neural.md")
 
 
 def landmark_std_arg(text: str):

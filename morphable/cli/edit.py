@@ -58,14 +58,14 @@ def run(args):
         w = parse_weights(model, [item])          # validates the name and the number
         name = item.partition("=")[0]
         expression[name] = w[model.expression_index(name)]
-    from ..refinement import edit, parse_loss_weights, refine
-
-    weights = parse_loss_weights(args.loss_weight, "--loss-weight")
-    options = renderer_options(args.inverter, what="edit")
     from ..detection import read_image
     from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
     from ..raster import save_image_png
+    from ..refinement import edit, parse_loss_weights, refine
+
+    weights = parse_loss_weights(args.loss_weight, "--loss-weight")
+    options = renderer_options(args.inverter, what="edit")
 
     res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model,
                        landmark_detector=args.landmark_detector, face_detector=args.face_detector)

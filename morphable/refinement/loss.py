@@ -23,10 +23,11 @@ landmarks; a frame the landmark fit gave a larger model error (detected landmark
 error after 100 steps, landmark fit alone 3.38 mm; gar / classical with lmk 0.01 and
 alpha 1e-4 (before) 5.27 / 3.08 mm, lmk 0.1: 4.40 / 2.68, lmk 1: 3.10 / 2.96, lmk 1 and alpha
 1e-3: 2.99 / 2.88 mm (chosen). Moving only the appearance for the first 50 steps changed
-little (3.01 / 2.93 mm) and was not kept. For detected landmarks and the real-photo GAR the
-photo-dressed validation sets chose ``lmk`` 10 (override it with :func:`parse_loss_weights`'
-``--loss-weight lmk=10``); it stays an option, not the default: on james it did worse than 1
-(docs/neural.md, "Loss weights for detected landmarks")."""
+little (3.01 / 2.93 mm) and was not kept. For detected landmarks and the real-photo GAR a
+sweep on the photo-dressed validation sets chose ``lmk`` 10 (``--loss-weight lmk=10`` on the
+command lines, :func:`parse_loss_weights`); it is an option, not the default, because on james,
+AFLW2000-3D and the London set it did worse than 1 (docs/neural.md, "Loss weights for detected
+landmarks")."""
 
 NO_PHOTOMETRIC = {"photo": 0.0, "feat": 0.0}
 """Weight overrides that turn the photometric terms off: a refinement by the landmark and prior
