@@ -286,24 +286,31 @@ def _quantisation(path: Path, arrays: dict) -> dict:
     from .real_faces import load_pack
 
     back = load_pack(path)
-    on = (np.abs(arrays["normals"]).sum(-1) > 0) & (arrays["mask"] > 0)
-    cos = np.clip((arrays["normals"][on] * back["normals"][on]).sum(-1), -1, 1)
-    ang = np.degrees(np.arccos(cos))
-    err = np.abs(arrays["image"].astype(np.float64) - back["image"])
-    mse = float((err ** 2).mean())
+    angles, abs_sum, sq_sum, count = [], 0.0, 0.0, 0
+    for i in range(0, len(back["image"]), 512):     # chunks: a 128-px pack is ~10 GB in float64
+        n, b = arrays["normals"][i:i + 512], back["normals"][i:i + 512]
+        on = (np.abs(n).sum(-1) > 0) & (arrays["mask"][i:i + 512] > 0)
+        angles.append(np.degrees(np.arccos(np.clip((n[on] * b[on]).sum(-1), -1, 1))).astype(np.float32))
+        err = np.abs(arrays["image"][i:i + 512].astype(np.float64) - back["image"][i:i + 512])
+        abs_sum, sq_sum, count = abs_sum + err.sum(), sq_sum + (err ** 2).sum(), count + err.size
+    ang = np.concatenate(angles)
+    mse = sq_sum / max(count, 1)
     return {"normal_error_deg_mean": float(ang.mean()), "normal_error_deg_p99": float(np.percentile(ang, 99)),
-            "normal_error_deg_max": float(ang.max()), "jpeg_abs_error_mean": float(err.mean()),
+            "normal_error_deg_max": float(ang.max()), "jpeg_abs_error_mean": float(abs_sum / max(count, 1)),
             "jpeg_psnr_db": float(10 * np.log10(255 ** 2 / max(mse, 1e-12)))}
 
 
 def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, limit=None,
           detector: str = "auto", max_residual: float = MAX_RESIDUAL_PX64, workers: int = 1,
-          jpeg_quality: int = 85, normal_scale: int = 64, max_mib: float = 50.0) -> dict:
+          jpeg_quality: int = 85, normal_scale: int = 64, max_mib: float = 50.0,
+          normal_resolution: int | None = None) -> dict:
     """Fit, bake and pack the photos of ``sources`` -> the report (also written as JSON
     beside ``out``). Where the pack is larger than ``max_mib`` (0: no limit), the JPEG
     quality is lowered in steps of 5 (to 50 at least) until it fits. InputError before any
     work for a missing data folder, no photos or an output that cannot be written; after the
-    fits, when no photo passes."""
+    fits, when no photo passes. ``normal_resolution``: normals and masks stored at that side
+    (:func:`neural.real_faces.save_pack`; the report's normal errors then include the
+    enlargement back to ``resolution``)."""
     from morphable.detection import resolve_detectors
     from morphable.io.atomic import atomic_path
 
@@ -359,7 +366,8 @@ def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, 
               "fit_detector": np.array([r[2]["detector"] for r in rows]),
               "fit_model": np.array(model)}
     while True:
-        save_pack(out, arrays, jpeg_quality=jpeg_quality, normal_scale=normal_scale)
+        save_pack(out, arrays, jpeg_quality=jpeg_quality, normal_scale=normal_scale,
+                  normal_resolution=normal_resolution)
         mib = out.stat().st_size / 2 ** 20
         if not max_mib or mib <= max_mib or jpeg_quality <= 50:
             break
@@ -375,6 +383,7 @@ def build(data, out, resolution: int = 64, model: str = "sfm", sources=SOURCES, 
               "passed_residual_px64": {"median": float(np.median(residuals)),
                                        "p90": float(np.percentile(residuals, 90))},
               "jpeg_quality": int(jpeg_quality), "normal_scale": int(normal_scale),
+              "normal_resolution": int(normal_resolution or resolution),
               "max_mib": float(max_mib),
               "pack_bytes": out.stat().st_size, "pack_mib": round(out.stat().st_size / 2 ** 20, 2),
               **_quantisation(out, arrays),
@@ -430,6 +439,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jpeg-quality", type=int, default=85, help="JPEG quality of the crops")
     p.add_argument("--normal-scale", type=int, default=64,
                    help="normals' x, y stored in steps of 1/NORMAL_SCALE (1..127)")
+    p.add_argument("--normal-resolution", type=int,
+                   help="store normals and masks at this side (RESOLUTION / an integer), "
+                        "enlarged back on load: the images of a 128-px pack within 64 MiB")
     p.add_argument("--max-mib", type=float, default=50.0,
                    help="lower the JPEG quality until the pack is at most this size (0: no limit)")
     p.add_argument("--sheet", help="also write a contact sheet PNG of 16 crops and normal maps")
@@ -448,9 +460,13 @@ def main(argv=None) -> int:
             raise InputError("--sources: no source given")
         if args.resolution < 16:
             raise InputError(f"--resolution must be at least 16, got {args.resolution}")
+        nr = args.normal_resolution
+        if nr is not None and (nr < 8 or args.resolution % nr):
+            raise InputError(f"--normal-resolution must divide --resolution {args.resolution} "
+                             f"and be at least 8, got {nr}")
         report = build(args.data, args.out, args.resolution, args.model, sources, args.limit,
                        args.detector, args.max_residual, args.workers, args.jpeg_quality,
-                       args.normal_scale, args.max_mib)
+                       args.normal_scale, args.max_mib, args.normal_resolution)
         if args.sheet:
             contact_sheet(args.out, args.sheet)
         log.info("wrote %s (%d crops, %.1f MiB) and its report", args.out, report["total"]["passed"],

@@ -20,6 +20,7 @@ from morphable.errors import InputError
 
 __all__ = ["WEIGHTS_DIR", "WEIGHTS_ENV", "GENERATOR_FILE", "default_generator_path",
            "default_no_norm_cycle_path", "default_inverter_path", "default_aux_path", "companion_path",
+           "inverter_name",
            "load_network", "load_generator"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
@@ -63,6 +64,14 @@ def companion_path(generator_path, name: str) -> Path | None:
         if p.is_file():
             return p
     return _committed(name)
+
+
+def inverter_name(generator_path) -> str:
+    """The file name of the inverter trained with the generator file ``generator_path``:
+    ``inverter_<tag>.pt`` beside ``gar_<tag>.pt`` (``gar_64.pt`` -> ``inverter_64.pt``),
+    ``inverter_tiny.pt`` for any other name (a run's ``generator.pt``)."""
+    stem = Path(generator_path).stem if generator_path is not None else ""
+    return f"inverter_{stem[4:]}.pt" if stem.startswith("gar_") else "inverter_tiny.pt"
 
 
 def default_aux_path(name: str) -> Path:

@@ -1,6 +1,6 @@
 """Configurations of the GAR: ``tiny`` (64x64, trains on 2 CPU cores), ``tiny-gpu`` (the same
-network, sized for a few minutes on one large GPU) and ``base`` (256x256, documented for a
-GPU). A config is a plain dataclass; checkpoints store it as a dict.
+network, sized for a few minutes on one large GPU), ``tiny128-gpu`` (128x128, one more
+block, for the same GPU) and ``base`` (256x256, documented for a GPU). A config is a plain dataclass; checkpoints store it as a dict.
 
 Examples
 --------
@@ -30,6 +30,9 @@ class GARConfig:
     channel_base, channel_max : feature channels at resolution r are
         ``min(channel_max, channel_base // r)`` (StyleGAN2's rule), for G and D alike.
     aux_width : base width of the auxiliary networks N, P, L, R.
+    aux_resolution : side (px) of the images the auxiliary networks take; G's renders and
+        the normal maps are area-downsampled to it for L_n, L_ldmk and L_id (a 128-px G
+        trained with the 64-px aux networks). None (default): ``resolution``.
     nim_background : the Normal Injection Module's background gain
         (:class:`neural.gar.NormalInjection`): True lets features pass where the normal map
         is empty (hair, neck, scene); False zeroes them there, as the generators trained
@@ -71,6 +74,7 @@ class GARConfig:
     channel_base: int = 2048
     channel_max: int = 128
     aux_width: int = 8
+    aux_resolution: int | None = None
     nim_background: bool = True
     # optimisation
     batch_size: int = 8
@@ -103,12 +107,21 @@ class GARConfig:
         r = self.resolution
         if r < 8 or r & (r - 1):
             raise ValueError(f"config {self.name!r}: resolution must be a power of two >= 8, got {r}")
+        a = self.aux_size
+        if a < 8 or a > r or r % a:
+            raise ValueError(f"config {self.name!r}: aux_resolution must divide resolution "
+                             f"{r} and be >= 8, got {a}")
         if self.contrastive_every < 1:
             raise ValueError(f"config {self.name!r}: contrastive_every must be >= 1, got "
                              f"{self.contrastive_every}")
         if self.landmark_set not in ("auto", "model", "all"):
             raise ValueError(f"config {self.name!r}: landmark_set must be auto, model or all, "
                              f"got {self.landmark_set!r}")
+
+    @property
+    def aux_size(self) -> int:
+        """Side (px) of the auxiliary networks' input: ``aux_resolution`` or ``resolution``."""
+        return int(self.aux_resolution or self.resolution)
 
     def channels(self, resolution: int) -> int:
         """Feature channels of the block at ``resolution`` pixels."""
@@ -151,6 +164,13 @@ CONFIGS = {
     # (neural/README.md); R1 gamma by StyleGAN2-ADA's rule 0.0002 R^2 / batch
     "tiny-gpu": GARConfig(name="tiny-gpu", batch_size=64, r1_gamma=0.0128, steps=5000,
                           sample_every=1000, checkpoint_every=1000, print_every=100),
+    # 128 px with Normal Injection at each of its six resolutions: channel_base doubled so
+    # that the 64 and 128 px blocks keep 64 and 32 channels (tiny's last two widths); the
+    # committed 64-px aux networks judge its renders area-downsampled; R1 gamma by the same
+    # rule, 0.0002 * 128^2 / 64
+    "tiny128-gpu": GARConfig(name="tiny128-gpu", resolution=128, channel_base=4096,
+                             aux_resolution=64, batch_size=64, r1_gamma=0.0512, steps=5000,
+                             sample_every=1000, checkpoint_every=1000, print_every=100),
     # StyleGAN2 256x256 channel schedule: 512 up to 32 px, then 256, 128, 64
     "base": GARConfig(name="base", resolution=256, z_dim=512, w_dim=512, channel_base=16384,
                       channel_max=512, aux_width=32, batch_size=16, g_lr=2e-3, d_lr=2e-3,

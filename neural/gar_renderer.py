@@ -7,8 +7,9 @@ Weights: ``weights=`` (a ``generator.pt`` / ``checkpoint.pt`` of :mod:`neural.tr
 (:mod:`neural.checkpoint`). Without any, construction fails with an InputError unless
 ``allow_untrained=True`` (then an untrained generator of ``config``, useful for tests and
 shapes only). ``inverter=``: the inverting network V that starts an inversion's latent
-("auto": ``inverter_tiny.pt`` beside the generator's weights file, else the committed
-``neural/weights/inverter_tiny.pt``, if present; None: none; a path or an
+("auto": the inverter beside the generator's weights file, ``inverter_<tag>.pt`` for
+``gar_<tag>.pt`` and ``inverter_tiny.pt`` for other names, else the committed file of that
+name, if present; None: none; a path or an
 :class:`neural.inverter.Inverter`). ``photometric_region``: the pixels an inversion's
 photometric terms compare, "crop" (all: G renders a background too) or "face" (the fitted
 face's coverage, as the classical renderer).
@@ -33,7 +34,8 @@ import torch
 from morphable.errors import InputError
 from morphable.renderer_plugins import RendererBase
 
-from .checkpoint import WEIGHTS_ENV, companion_path, default_generator_path, load_generator
+from .checkpoint import (WEIGHTS_ENV, companion_path, default_generator_path, inverter_name,
+                         load_generator)
 from .config import get_config
 from .gar import Generator
 from .inverter import inverter_from
@@ -75,7 +77,7 @@ class GARRenderer(RendererBase):
         self.seed = seed
         if isinstance(inverter, str) and inverter == "auto":
             # V trained against this generator: the inverter beside its weights file
-            inverter = companion_path(self.weights, "inverter_tiny.pt")
+            inverter = companion_path(self.weights, inverter_name(self.weights))
         self.inverter = inverter_from(inverter)
 
     @property

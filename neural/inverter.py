@@ -105,7 +105,8 @@ class Inverter(nn.Module):
         module docstring); ``generator`` seeds the prior part."""
         z_hat, _ = self(image)
         c = float(self.direction_cosine.clamp(0, 1))
-        prior = torch.randn(z_hat.shape, generator=generator)
+        # drawn on the CPU so that a CPU generator gives the same latent on any device
+        prior = torch.randn(z_hat.shape, generator=generator).to(z_hat.device)
         return c * pixel_norm(z_hat) + (1 - c * c) ** 0.5 * prior
 
 

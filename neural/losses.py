@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 __all__ = ["DEFAULT_LAMBDAS", "normal_loss", "landmark_loss", "identity_loss",
            "generator_adversarial_loss", "discriminator_loss", "r1_penalty", "total_loss",
-           "generator_losses"]
+           "generator_losses", "area_downsample"]
 
 DEFAULT_LAMBDAS = {"n": 2.0, "ldmk": 2.0, "id": 1.0, "adv": 1.0}
 
@@ -94,9 +94,22 @@ def total_loss(terms: dict, lambdas: dict | None = None) -> torch.Tensor:
     return sum(lam[k] * v for k, v in terms.items())
 
 
+def area_downsample(x: torch.Tensor, size=None, unit: bool = False) -> torch.Tensor:
+    """(B, C, H, W) -> (B, C, size, size) by averaging blocks (H a multiple of ``size``);
+    ``x`` itself when ``size`` is None or H. ``unit=True`` for normal maps: each averaged
+    vector rescaled to unit length, zero where the block holds no normal."""
+    if size is None or x.shape[-1] == size:
+        return x
+    y = F.adaptive_avg_pool2d(x, size)
+    if unit:
+        length = y.norm(dim=1, keepdim=True)
+        y = torch.where(length > 1e-6, y / length.clamp_min(1e-12), torch.zeros_like(y))
+    return y
+
+
 def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.Tensor,
                      z1: torch.Tensor, z2: torch.Tensor, lambdas: dict | None = None,
-                     landmark_index=None, augment=None):
+                     landmark_index=None, augment=None, aux_size=None):
     """All GAR generator terms for one batch.
 
     Parameters
@@ -112,6 +125,8 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
         defines, which are the ones the synthetic L network was trained on); default all
     augment : optional differentiable image transform applied to the fakes before D (the
         discriminator's augmentation, :func:`neural.augment.diff_augment`); default none
+    aux_size : side (px) the aux networks take, when smaller than G's: renders and normal
+        maps are area-downsampled to it first (:func:`area_downsample`); default G's own
 
     Returns
     -------
@@ -130,18 +145,20 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
     normals, z = (torch.cat(x) for x in zip(*pairs.values()))
     image = dict(zip(pairs, G(normals, z).split(B)))
     img_a1 = image["a1"]
+    small = {k: area_downsample(v, aux_size) for k, v in image.items()}
     terms = {}
     if lam["n"]:
         with torch.no_grad():
-            mask = aux["P"](img_a1)
-        terms["n"] = normal_loss(normals_a, aux["N"](img_a1), mask)
+            mask = aux["P"](small["a1"])
+        terms["n"] = normal_loss(area_downsample(normals_a, aux_size, unit=True),
+                                 aux["N"](small["a1"]), mask)
     if lam["ldmk"]:
-        lm = aux["L"].landmarks(torch.cat([img_a1, image["a2"]]))
+        lm = aux["L"].landmarks(torch.cat([small["a1"], small["a2"]]))
         if landmark_index is not None:
             lm = lm[:, landmark_index]
-        terms["ldmk"] = landmark_loss(*lm.split(B), image_size=img_a1.shape[-1])
+        terms["ldmk"] = landmark_loss(*lm.split(B), image_size=small["a1"].shape[-1])
     if lam["id"]:
-        emb = aux["R"](torch.cat([img_a1, image["b1"]]))
+        emb = aux["R"](torch.cat([small["a1"], small["b1"]]))
         terms["id"] = identity_loss(*emb.split(B))
     if lam["adv"]:
         terms["adv"] = generator_adversarial_loss(

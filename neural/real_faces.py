@@ -30,7 +30,11 @@ Any further array whose first axis is N (e.g. the fit's ``fit_identity`` (N, K),
 ``fit_expression`` (N, E), ``fit_pose`` (N, 3) yaw, pitch, roll in degrees) is stored as
 given; other arrays (e.g. a scalar setting) are stored unchanged too.
 
-Stored form: images as JPEG (quality ``jpeg_quality``), normals as ``n_x, n_y`` quantised
+Stored form: images as JPEG (quality ``jpeg_quality``), normals and mask at R px or at
+``normal_resolution`` = R / f (:func:`downsample_faces`; read back bilinearly enlarged to R,
+each normal rescaled to unit length: a 128-px pack of 11k photos keeps its images within the
+64 MiB that reach a GPU machine, at the cost of softer face outlines), normals as
+``n_x, n_y`` quantised
 to int8 steps of ``1 / normal_scale`` and delta-coded along rows (``n_z`` is recovered as
 ``sqrt(1 - n_x^2 - n_y^2)`` with its sign kept per pixel), the mask as uint8; background
 pixels (zero normals) stay zero. Everything is zlib-compressed by
@@ -65,7 +69,8 @@ import numpy as np
 from morphable.errors import InputError
 from morphable.ibug68 import MIRROR
 
-__all__ = ["save_pack", "load_pack", "RealFaces", "flip_faces", "REQUIRED_KEYS", "SPLITS"]
+__all__ = ["save_pack", "load_pack", "RealFaces", "flip_faces", "downsample_faces",
+           "REQUIRED_KEYS", "SPLITS"]
 
 REQUIRED_KEYS = ("image", "normals", "mask", "landmarks", "person", "held_out", "source", "name")
 SPLITS = ("train", "test", "all")
@@ -91,8 +96,10 @@ def _decode_jpeg(data: np.ndarray, offsets: np.ndarray) -> np.ndarray:
                      for a, b in zip(offsets[:-1], offsets[1:])])
 
 
-def save_pack(path, arrays: dict, jpeg_quality: int = 90, normal_scale: int = 127) -> Path:
-    """Write the decoded ``arrays`` (see the module's table) to ``path`` atomically.
+def save_pack(path, arrays: dict, jpeg_quality: int = 90, normal_scale: int = 127,
+              normal_resolution: int | None = None) -> Path:
+    """Write the decoded ``arrays`` (see the module's table) to ``path`` atomically; with
+    ``normal_resolution`` (R divided by an integer), the normals and mask stored at that side.
 
     Returns the path. Raises :class:`~morphable.errors.InputError` naming the key when a
     required array is missing or its shape does not match.
@@ -113,6 +120,13 @@ def save_pack(path, arrays: dict, jpeg_quality: int = 90, normal_scale: int = 12
                          f"{image.shape}, got {normals.shape} and {mask.shape}")
     if not 1 <= normal_scale <= 127:
         raise InputError(f"{path}: normal_scale must be in 1..127, got {normal_scale}")
+    if normal_resolution is not None and normal_resolution != R:
+        try:
+            small = downsample_faces({"image": image, "normals": normals, "mask": mask,
+                                      "landmarks": np.zeros((N, 0, 2))}, int(normal_resolution))
+        except InputError as e:
+            raise InputError(f"{path}: normal_resolution: {e}") from None
+        normals, mask = small["normals"], small["mask"]
     mask_u8 = np.round(mask * 255).astype(np.uint8)
     q = np.round(np.clip(normals[..., :2], -1, 1) * normal_scale).astype(np.int16)
     # 0 background, 1 facing the camera, 2 facing away (grazing pixels of a perspective view)
@@ -166,10 +180,75 @@ def load_pack(path) -> dict:
     normals = np.concatenate([q, nz[..., None]], axis=-1)
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
     normals[side == 0] = 0
-    out = {"image": _decode_jpeg(raw.pop("image_jpeg"), raw.pop("image_offsets")),
-           "normals": normals.astype(np.float32), "mask": mask_u8.astype(np.float32) / 255}
+    image = _decode_jpeg(raw.pop("image_jpeg"), raw.pop("image_offsets"))
+    mask = mask_u8.astype(np.float32) / 255
+    if normals.shape[1] != image.shape[1]:
+        # in chunks: the enlargement's float temporaries of a whole 128-px pack would need
+        # several times the 2.3 GB of its normals
+        R, step = image.shape[1], 256
+        normals = np.concatenate([_enlarge(normals[i:i + step], R, unit=True)
+                                  for i in range(0, len(normals), step)] or [np.zeros((0, R, R, 3), np.float32)])
+        mask = np.concatenate([_enlarge(mask[i:i + step], R) for i in range(0, len(mask), step)]
+                              or [np.zeros((0, R, R), np.float32)])
+    out = {"image": image, "normals": normals.astype(np.float32), "mask": mask}
     out.update(raw)
     out["held_out"] = out["held_out"].astype(bool)
+    return out
+
+
+def _enlarge(a: np.ndarray, size: int, unit: bool = False) -> np.ndarray:
+    """(N, r, r, ...) -> (N, size, size, ...) bilinearly (pixel centres, edges clamped, as
+    ``torch.nn.functional.interpolate(align_corners=False)``); ``unit``: vectors along the
+    last axis rescaled to unit length, zero where every neighbour is zero."""
+    r = a.shape[1]
+    x = np.clip((np.arange(size) + 0.5) * r / size - 0.5, 0, r - 1)
+    i0 = np.floor(x).astype(int)
+    i1, w = np.minimum(i0 + 1, r - 1), (x - i0).astype(np.float32)
+    shape = (1, -1) + (1,) * (a.ndim - 2)
+    a = a[:, i0] * (1 - w).reshape(shape) + a[:, i1] * w.reshape(shape)
+    shape = (1, 1, -1) + (1,) * (a.ndim - 3)
+    a = a[:, :, i0] * (1 - w).reshape(shape) + a[:, :, i1] * w.reshape(shape)
+    if unit:
+        length = np.linalg.norm(a, axis=-1, keepdims=True)
+        a = np.where(length > 1e-6, a / np.maximum(length, 1e-12), 0)
+    return a.astype(np.float32)
+
+
+def downsample_faces(arrays: dict, resolution: int) -> dict:
+    """The decoded ``arrays`` of a pack at R px (the module's table) at ``resolution`` px,
+    R an integer multiple of it: images and masks area-averaged over f x f blocks
+    (f = R / resolution), normals summed over the block's face pixels and renormalised (zero
+    where the block holds no face; the packs' 2 x 2 supersampled bakes average the same way),
+    landmarks moved to the new pixel centres ``(x + 0.5) / f - 0.5``. A new dict; arrays
+    without pixels are shared. One 128-px pack serves a 64-px GAR this way.
+
+    >>> import numpy as np
+    >>> a = {"image": np.full((1, 4, 4, 3), 200, np.uint8), "mask": np.ones((1, 4, 4)),
+    ...      "normals": np.tile(np.float32([0, 0, 1]), (1, 4, 4, 1)),
+    ...      "landmarks": np.full((1, 68, 2), 1.5, np.float32)}
+    >>> d = downsample_faces(a, 2)
+    >>> d["image"].shape, float(d["landmarks"][0, 0, 0]), float(d["normals"][0, 1, 1, 2])
+    ((1, 2, 2, 3), 0.5, 1.0)
+    """
+    R = int(np.asarray(arrays["image"]).shape[1])
+    if resolution == R:
+        return dict(arrays)
+    if resolution < 1 or R % resolution:
+        raise InputError(f"a pack of {R} px cannot be area-downsampled to {resolution} px "
+                         f"(not an integer factor)")
+    f = R // resolution
+
+    def blocks(a):
+        a = np.asarray(a, np.float32)
+        return a.reshape(a.shape[0], resolution, f, resolution, f, *a.shape[3:]).mean((2, 4))
+
+    normals = blocks(arrays["normals"])
+    length = np.linalg.norm(normals, axis=-1, keepdims=True)
+    out = dict(arrays)
+    out["image"] = np.round(blocks(arrays["image"])).astype(np.uint8)
+    out["mask"] = blocks(arrays["mask"])
+    out["normals"] = np.where(length > 1e-6, normals / np.maximum(length, 1e-12), 0).astype(np.float32)
+    out["landmarks"] = ((np.asarray(arrays["landmarks"], np.float32) + 0.5) / f - 0.5)
     return out
 
 
@@ -201,16 +280,24 @@ class RealFaces:
     flip : mirror each drawn crop with probability 1/2 (normals' x negated)
     device : torch device of the batches; the split's crops are held there as tensors
         (images as uint8) once, so that drawing a batch moves no data to the device
+    resolution : side of the crops served, px; a pack at an integer multiple of it is
+        area-downsampled once on load (:func:`downsample_faces`); default the pack's own
 
     The second view of a pair (``pair=True``) is another photo of the same person in the
     split when there is one (e.g. the London set's smiling photo), else the mirror image of
     the same photo: the same identity under another pose.
     """
 
-    def __init__(self, path, split: str = "train", flip: bool = True, device="cpu"):
+    def __init__(self, path, split: str = "train", flip: bool = True, device="cpu",
+                 resolution: int | None = None):
         if split not in SPLITS:
             raise InputError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
         arrays = load_pack(path)
+        if resolution is not None:
+            try:
+                arrays = downsample_faces(arrays, int(resolution))
+            except InputError as e:
+                raise InputError(f"{path}: {e}") from None
         keep = {"train": ~arrays["held_out"], "test": arrays["held_out"],
                 "all": np.ones(len(arrays["held_out"]), bool)}[split]
         if not keep.any():

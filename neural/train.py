@@ -43,7 +43,8 @@ from .config import GARConfig, get_config
 from .gar import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty
 
-__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index", "AMP_DTYPES"]
+__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index", "device_from",
+           "AMP_DTYPES"]
 
 AMP_DTYPES = {"bf16": "bfloat16", "none": None}
 """``--amp`` choices -> the torch.autocast dtype (None: full precision)."""
@@ -140,12 +141,11 @@ class Trainer:
             raise InputError("--data batches are drawn on the device; drop --workers")
         if amp is not None and amp not in AMP_DTYPES:
             raise InputError(f"--amp must be one of {', '.join(AMP_DTYPES)}, got {amp!r}")
-        try:
-            self.device = torch.device(device)
-            torch.empty(0, device=self.device)
-        except (RuntimeError, AssertionError) as e:
-            raise InputError(f"--device {device}: {str(e).splitlines()[0]}") from None
-        real = None if data is None else RealFaces(data, "train", device=self.device)
+        self.device = device_from(device)
+        if self.device.type == "cuda":
+            torch.backends.cudnn.benchmark = True     # fixed shapes: pick the fastest kernels
+        real = None if data is None else RealFaces(data, "train", device=self.device,
+                                                   resolution=config.resolution)
         policy = config.augment
         if policy is None:
             policy = DEFAULT_POLICY if real is not None else ""
@@ -170,7 +170,7 @@ class Trainer:
                                       betas=tuple(b ** c for b in config.betas))
         if aux is None:
             aux = {n: load_aux(n, None if aux_dir is None else Path(aux_dir) / f"aux_{n}.pt",
-                               resolution=config.resolution) for n in NAMES}
+                               resolution=config.aux_size) for n in NAMES}
         self.aux = {n: self.layout(net) for n, net in aux.items()}
         # the source of G's normal maps (and, without --data or --images, of D's reals)
         self.real = real
@@ -292,7 +292,7 @@ class Trainer:
             total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
                                                   batch["normals_b"], z1, z2, lambdas,
                                                   landmark_index=self.landmark_index,
-                                                  augment=augment)
+                                                  augment=augment, aux_size=cfg.aux_size)
         self.opt_g.zero_grad(set_to_none=True)
         total.backward()
         self.opt_g.step()
@@ -359,11 +359,18 @@ class Trainer:
         print(line, file=out or sys.stdout, flush=True)
         return line
 
-    def fit(self, steps=None, progress: bool = True, max_minutes=None, max_steps=None) -> int:
+    def fit(self, steps=None, progress: bool = True, max_minutes=None, max_steps=None,
+            checkpoint_minutes=None) -> int:
         """Train up to ``steps`` (default config.steps) total steps, or until ``max_minutes``
         have passed or ``max_steps`` steps of this call are done (then a sample grid and a
         checkpoint are written; rerun to continue); returns the final step. Prints the
-        losses and throughput every ``config.print_every`` steps and at the end."""
+        losses and throughput every ``config.print_every`` steps and at the end.
+
+        ``checkpoint_minutes``: also a checkpoint each time this many minutes have passed
+        since the last one (a run cut off from outside still leaves recent weights).
+        At the end, ``summary.json`` in the output folder: the config, step, images seen in
+        all (step x batch size), this call's training seconds, images/s and wall seconds,
+        the device, and the mean loss terms of the last ``print_every`` steps."""
         from tqdm import tqdm
 
         cfg = self.config
@@ -375,8 +382,8 @@ class Trainer:
         bar = tqdm(total=steps, initial=self.step, disable=not progress, unit="step",
                    dynamic_ncols=True)
         logf = open(self.out / "log.jsonl", "a")
-        start = time.monotonic()
-        train_seconds, window, terms = 0.0, [0.0, 0], None
+        start = last_save = time.monotonic()
+        train_seconds, window, terms, recent = 0.0, [0.0, 0], None, []
         try:
             it = iter(batches)
             while self.step < steps:
@@ -395,6 +402,7 @@ class Trainer:
                 terms["step"], terms["seconds"] = self.step, round(dt, 4)
                 logf.write(json.dumps(terms) + "\n")
                 logf.flush()
+                recent = (recent + [terms])[-max(cfg.print_every, 1):]
                 bar.update(1)
                 bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()
                                  if k in ("n", "ldmk", "id", "adv", "d")})
@@ -403,8 +411,11 @@ class Trainer:
                     window = [0.0, 0]
                 if self.step % cfg.sample_every == 0 or self.step == steps:
                     self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
-                if self.step % cfg.checkpoint_every == 0 or self.step == steps:
+                due = (checkpoint_minutes is not None
+                       and time.monotonic() - last_save > 60 * checkpoint_minutes)
+                if self.step % cfg.checkpoint_every == 0 or self.step == steps or due:
                     self.save()
+                    last_save = time.monotonic()
         except KeyboardInterrupt:
             self.save()
             raise
@@ -414,7 +425,44 @@ class Trainer:
         if terms is not None:
             print("end: ", end="", flush=True)
             self.report(terms, steps, (self.step - first) * cfg.batch_size, train_seconds)
+            self.write_summary(recent, self.step - first, train_seconds,
+                               time.monotonic() - start)
         return self.step
+
+    def write_summary(self, recent: list, steps: int, train_seconds: float,
+                      wall_seconds: float) -> Path:
+        """``summary.json`` of :meth:`fit` (``recent``: the last steps' loss dicts)."""
+        cfg = self.config
+        keys = sorted({k for t in recent for k in t} - {"step", "seconds"})
+        losses = {k: float(np.mean([t[k] for t in recent if k in t])) for k in keys}
+        summary = {"config": cfg.to_dict(), "step": self.step,
+                   "images_seen": self.step * cfg.batch_size, "steps_this_run": steps,
+                   "train_seconds": round(train_seconds, 2),
+                   "images_per_second": round(steps * cfg.batch_size / max(train_seconds, 1e-9), 1),
+                   "wall_seconds": round(wall_seconds, 2), "device": _device_name(self.device),
+                   "amp": str(self.amp_dtype).replace("torch.", "") if self.amp_dtype else None,
+                   "channels_last": self.channels_last, "losses_recent_mean": losses}
+        path = self.out / "summary.json"
+        path.write_text(json.dumps(summary, indent=2))
+        return path
+
+
+def device_from(name) -> torch.device:
+    """The torch device ``name`` (e.g. ``"cuda"``) once a tensor could be made on it; an
+    InputError naming it otherwise (no CUDA build, no GPU)."""
+    try:
+        device = torch.device(name)
+        torch.empty(0, device=device)
+    except (RuntimeError, AssertionError) as e:
+        raise InputError(f"--device {name}: {str(e).splitlines()[0]}") from None
+    return device
+
+
+def _device_name(device) -> str:
+    """The device in words: the GPU's name for CUDA devices, else the torch device."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    return str(device)
 
 
 def _parse_set(items) -> dict:
@@ -454,6 +502,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="torch CPU threads")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
+    p.add_argument("--checkpoint-minutes", type=float, metavar="M",
+                   help="also write a checkpoint every M minutes of this run")
     p.add_argument("--max-steps", type=int, metavar="N",
                    help="stop (with a checkpoint) after N steps of this run")
     p.add_argument("--amp", default="none", choices=sorted(AMP_DTYPES),
@@ -491,7 +541,7 @@ def main(argv=None) -> int:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
         trainer.fit(progress=not args.quiet, max_minutes=args.max_minutes,
-                    max_steps=args.max_steps)
+                    max_steps=args.max_steps, checkpoint_minutes=args.checkpoint_minutes)
         log.info("done: step %d, weights in %s", trainer.step, trainer.out / "generator.pt")
         return 0
     except MorphableError as e:

@@ -99,8 +99,8 @@ def evaluate_real(V, G, normals, images, steps: int = 100, lr: float = 0.05, see
 def evaluate_inverter(V, G, normals, seed: int = 1) -> dict:
     """Latent and image errors of V on renders of ``normals`` (see the module docstring)."""
     g = torch.Generator().manual_seed(seed)
-    z = torch.randn(len(normals), G.config.z_dim, generator=g)
-    z_rand = torch.randn(len(normals), G.config.z_dim, generator=g)
+    z = torch.randn(len(normals), G.config.z_dim, generator=g).to(normals.device)
+    z_rand = torch.randn(len(normals), G.config.z_dim, generator=g).to(normals.device)
     image = G(normals, z, noise="zero")
     z_hat, _ = V(image)
     mse = float((pixel_norm(z_hat) - pixel_norm(z)).pow(2).mean())
@@ -119,7 +119,8 @@ def calibrate(V, G, normals, seed: int = 2) -> float:
     """Set ``V.direction_cosine`` to the mean cosine of ``PN(z_hat)`` and ``z`` on renders of
     ``normals`` (training normal maps, fresh latents) and return it."""
     z = torch.randn(len(normals), G.config.z_dim, generator=torch.Generator().manual_seed(seed))
-    z_hat, _ = V(G(normals, z, noise="zero"))
+    z_hat, _ = V(G(normals, z.to(normals.device), noise="zero"))
+    z = z.to(z_hat.device)
     c = float(torch.nn.functional.cosine_similarity(z_hat, z, dim=1).mean())
     V.direction_cosine.fill_(max(c, 0.0))
     return c
@@ -127,13 +128,18 @@ def calibrate(V, G, normals, seed: int = 2) -> float:
 
 def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: int = 96,
           held_out: int = 32, seed: int = 0, max_minutes: float | None = None, progress=True,
-          data=None):
+          data=None, device="cpu", eval_steps: int = 100):
     """Train V for ``steps`` (or ``max_minutes``) -> (V, metrics dict, loss log list).
 
     ``data``: a :mod:`neural.real_faces` pack whose fits' normal maps replace the
-    synthetic ones (train split for training, test split held out); then the metrics also
-    hold ``real`` (:func:`evaluate_real` on the held-out photos)."""
+    synthetic ones (train split for training, test split held out; a pack at a multiple of
+    G's resolution is area-downsampled); then the metrics also hold ``real``
+    (:func:`evaluate_real` on the held-out photos, ``eval_steps`` optimiser steps). ``device``: where V trains (G is moved
+    there); the returned V is on the CPU, and the draws are the same on any device."""
+    from .train import device_from
+
     cfg = G.config
+    device = device_from(device)
     torch.manual_seed(seed)
     if data is None:
         train_n = normal_pool(cfg, pool, seed)
@@ -141,11 +147,14 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
     else:
         from .real_faces import RealFaces
 
-        faces = RealFaces(data, split="all", flip=False)      # the pack decoded once
+        faces = RealFaces(data, split="all", flip=False,      # the pack decoded once
+                          resolution=cfg.resolution)
         train_n = pack_pool(faces, False, pool, seed)["normals"]
         test = pack_pool(faces, True, held_out, seed + 10_000)
         test_n = test["normals"]
-    V = Inverter(cfg)
+    G = G.to(device)
+    train_n, test_n = train_n.to(device), test_n.to(device)
+    V = Inverter(cfg).to(device)
     opt = torch.optim.Adam(V.parameters(), lr=lr, betas=(0.9, 0.99))
     rng = torch.Generator().manual_seed(seed)
     history, t0 = [], time.perf_counter()
@@ -155,8 +164,8 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
 
         bar = tqdm(bar, desc="inverter", file=sys.stderr)
     for step in bar:
-        idx = torch.randint(len(train_n), (batch_size,), generator=rng)
-        z = torch.randn(batch_size, cfg.z_dim, generator=rng)
+        idx = torch.randint(len(train_n), (batch_size,), generator=rng).to(device)
+        z = torch.randn(batch_size, cfg.z_dim, generator=rng).to(device)
         noise = G.make_noise(batch_size, generator=rng)
         loss, parts = inverter_loss(V, G, train_n[idx], z, noise)
         opt.zero_grad(set_to_none=True)
@@ -171,8 +180,8 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
     metrics = evaluate_inverter(V, G, test_n)
     metrics.update(steps=len(history), seconds=round(time.perf_counter() - t0, 1))
     if data is not None:
-        metrics["real"] = evaluate_real(V, G, test_n, test["image"])
-    return V, metrics, history
+        metrics["real"] = evaluate_real(V, G, test_n, test["image"].to(device), steps=eval_steps)
+    return V.cpu(), metrics, history
 
 
 def build_parser():
@@ -192,6 +201,9 @@ def build_parser():
     p.add_argument("--held-out", type=int, default=32, help="held-out normal maps for the report")
     p.add_argument("--max-minutes", type=float)
     p.add_argument("--threads", type=int)
+    p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
+    p.add_argument("--eval-steps", type=int, default=100,
+                   help="optimiser steps per held-out photo in the --data report")
     p.add_argument("--seed", type=int, default=0)
     add_verbosity_arguments(p)
     return p
@@ -204,6 +216,9 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     from .gar_renderer import GARRenderer
+    from .train import device_from
+
+    device_from(args.device)             # a one-line error before any loading
 
     r = GARRenderer(weights=args.generator) if args.generator else GARRenderer()
     G = r.generator
@@ -213,7 +228,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     V, metrics, history = train(G, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                                 pool=args.pool, held_out=args.held_out, seed=args.seed,
-                                max_minutes=args.max_minutes, data=args.data)
+                                max_minutes=args.max_minutes, data=args.data,
+                                device=args.device, eval_steps=args.eval_steps)
     metrics["generator"] = r.weights
     save_inverter(V, out / "inverter.pt", metrics=metrics)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))

@@ -28,7 +28,7 @@ def sphere_normals(B, R):
     return n[None].expand(B, 3, R, R).clone()
 
 
-@pytest.mark.parametrize("name,batch", [("tiny", 2), ("base", 1)])
+@pytest.mark.parametrize("name,batch", [("tiny", 2), ("tiny128-gpu", 1), ("base", 1)])
 def test_forward_backward_shapes(name, batch):
     torch.manual_seed(0)
     cfg = get_config(name)
@@ -284,6 +284,42 @@ def test_generator_losses_render_only_what_the_terms_need():
         assert ("id" in terms) == (lambdas.get("id", 1) != 0)
 
 
+def test_generator_losses_take_aux_networks_of_a_lower_resolution():
+    """A 32-px G judged by 16-px aux networks: each aux network sees (B, 3, 16, 16) images,
+    L_n compares 16-px normal maps, and the terms equal those of G's renders downsampled by
+    hand."""
+    from neural.losses import area_downsample
+
+    G, D, _, n, z1, z2 = small_gar_batch()
+    aux = {k: load_aux(k, pretrained=False, width=4, resolution=16) for k in "NPLR"}
+    seen = []
+    for net in aux.values():
+        net.register_forward_pre_hook(lambda module, args: seen.append(tuple(args[0].shape[-2:])))
+    torch.manual_seed(1)
+    total, terms, fake = generator_losses(G, D, aux, n, n.flip(-1), z1, z2, aux_size=16)
+    assert set(seen) == {(16, 16)} and fake.shape == (2, 3, 32, 32)
+    assert all(torch.isfinite(torch.tensor(v)) for v in terms.values())
+    total.backward()
+    assert G.mapping.layers[0].weight.grad.abs().sum() > 0
+    with torch.no_grad():
+        torch.manual_seed(1)
+        img = G(torch.cat([n, n, n.flip(-1)]), torch.cat([z1, z2, z1]))[:2]
+        small, n16 = area_downsample(img, 16), area_downsample(n, 16, unit=True)
+        expect = normal_loss(n16, aux["N"](small), aux["P"](small))
+    assert abs(terms["n"] - float(expect)) < 1e-5
+    norms = n16.norm(dim=1)
+    assert torch.allclose(norms[norms > 0], torch.ones(()), atol=1e-5)
+    assert area_downsample(img, None) is img and area_downsample(img, 32) is img
+
+
+def test_aux_resolution_must_divide_the_resolution():
+    assert get_config("tiny128-gpu").aux_size == 64 and get_config("tiny").aux_size == 64
+    with pytest.raises(ValueError, match="aux_resolution"):
+        get_config("tiny", aux_resolution=48)
+    with pytest.raises(ValueError, match="aux_resolution"):
+        get_config("tiny", aux_resolution=128)
+
+
 # --- auxiliary networks ------------------------------------------------------------------
 def test_soft_argmax_finds_peaks():
     heat = torch.full((1, 2, 16, 16), -50.0)
@@ -333,3 +369,14 @@ def test_aux_user_weights(tmp_path):
         load_aux("R", weights=tmp_path / "missing.pt")
     with pytest.raises(InputError, match="unknown aux network"):
         load_aux("Q")
+
+
+def test_inverter_name_pairs_each_generator_file_with_its_inverter(tmp_path):
+    from neural.checkpoint import companion_path, inverter_name
+
+    assert inverter_name("w/gpu/gar_64.pt") == "inverter_64.pt"
+    assert inverter_name("w/real/gar_tiny.pt") == "inverter_tiny.pt"
+    assert inverter_name("runs/x/generator.pt") == "inverter_tiny.pt"
+    (tmp_path / "inverter_128.pt").write_bytes(b"")
+    assert companion_path(tmp_path / "gar_128.pt", "inverter_128.pt") == tmp_path / "inverter_128.pt"
+    assert companion_path(tmp_path / "gar_64.pt", "inverter_64.pt") is None

@@ -140,3 +140,51 @@ def test_bad_pack_one_line_error(tmp_path, capsys):
     assert rc == 2 and "--images" in io.err
     rc, io = _run(args + ["--out", str(tmp_path / "o"), "--set", "augment=zoom"], capsys)
     assert rc == 2 and "zoom" in io.err and io.err.strip().count("\n") == 0
+
+
+def test_gar_gpu_recipe_on_cpu(tmp_path_factory, pack_maker, tmp_path):
+    """The GPU recipe's one command, 1 step of each job on the CPU: the 64-px and 128-px GARs
+    from one 128-px pack, their inverters, and the few flat files the device tool returns."""
+    import subprocess
+    import sys
+
+    pack128 = pack_maker(tmp_path_factory.mktemp("pack128") / "p128.npz", n=10, resolution=128,
+                         person=list(range(10)), held_out=[False] * 8 + [True] * 2)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "neural.gpu_recipe", "gar", "--data", str(pack128), "--out",
+           str(out), "--runs", str(tmp_path / "runs"), "--device", "cpu", "--max-steps", "1",
+           "--batch-size", "2", "--set", "channel_max=16", "z_dim=16", "w_dim=16"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, (out / "log.txt").read_text()[-3000:] + run.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["gar_128.pt", "gar_64.pt", "gar_64_no_norm_cycle.pt", "inverter_128.pt",
+                     "inverter_64.pt", "log.txt", "recipe.json"]
+    assert all((out / n).stat().st_size <= 16 * 2**20 for n in names)
+    report = json.loads((out / "recipe.json").read_text())
+    assert set(report["jobs"]) == {"gar64", "gar128", "gar64_n0", "inv64", "inv128"}
+    assert report["jobs"]["gar64_n0"]["summary"]["config"]["lambda_n"] == 0
+    for side in (64, 128):
+        job = report["jobs"][f"gar{side}"]
+        s = job["summary"]
+        assert job["returncode"] == 0 and s["step"] == 1 and s["images_seen"] == 2
+        assert s["config"]["resolution"] == side and s["images_per_second"] > 0
+        assert s["device"] == "cpu" and np.isfinite(list(s["losses_recent_mean"].values())).all()
+        assert report["jobs"][f"inv{side}"]["metrics"]["steps"] == 1
+    from neural.gar_renderer import GARRenderer
+
+    r = GARRenderer(weights=out / "gar_128.pt", inverter=out / "inverter_128.pt")
+    n = torch.zeros(1, 3, 128, 128)
+    n[:, 2] = 1
+    assert r.resolution == 128 and r.render(n, r.default_appearance(1)).shape == (1, 3, 128, 128)
+    assert r.generator.config.aux_size == 64
+
+
+def test_gpu_recipe_bad_pack_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "neural.gpu_recipe", "gar", "--data",
+                          str(tmp_path / "none.npz"), "--out", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and not (tmp_path / "o").exists()
+    assert run.stderr.strip().count("\n") == 0 and "none.npz: pack not found" in run.stderr

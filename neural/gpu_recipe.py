@@ -1,0 +1,217 @@
+"""GPU recipes: one command that trains a set of networks on a lent GPU within a time budget
+and leaves their weights, sample grids, logs and one JSON summary in an output folder.
+
+``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 6
+[--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``).
+
+A recipe is a list of stages; the jobs of a stage run at the same time (small networks leave
+most of a large GPU idle between kernel launches, so two runs side by side train nearly twice
+the images of one), each a ``python -m`` command of this package with its own time limit
+(``--max-minutes``; the runner kills a job that overruns it by ``GRACE_MINUTES``). While a job
+runs, its newest weights are copied into the output folder every ``POLL_SECONDS``, so a run
+cut off from outside still leaves the last checkpoint's weights (the trainers write one each
+minute). Output file names are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the
+device tool returns at most 8 files of 16 MiB.
+
+``recipe.json``: per job its command, wall seconds, exit status, and the trainer's own
+``summary.json`` / ``metrics.json`` (steps, images seen, images/s, final losses); the device
+and the torch version. ``log.txt``: every job's output.
+
+The ``gar`` recipe trains ``tiny-gpu`` (64 px), ``tiny128-gpu`` (128 px) and ``tiny-gpu``
+with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack side by side (a 128-px pack
+serves all: the 64-px runs area-downsample it), then the first two's inverters V, side by
+side too; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
+``inverter_64.pt``, ``inverter_128.pt``, ``recipe.json`` and ``log.txt`` (sample grids are
+made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs N steps of each job instead (the CPU
+test of the recipe).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from morphable.errors import InputError, one_line_errors
+from morphable.logs import add_verbosity_arguments, configure, verbosity
+
+__all__ = ["gar_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
+
+POLL_SECONDS = 15
+GRACE_MINUTES = 2.0
+
+
+def _job(name, module, args, minutes, outputs, run_dir):
+    """A job: ``python -m module args`` in ``run_dir/name``; ``outputs`` maps a file of
+    that folder to its flat name in the output folder."""
+    return {"name": name, "module": module, "args": [str(a) for a in args],
+            "minutes": float(minutes), "dir": str(Path(run_dir) / name), "outputs": outputs}
+
+
+def gar_recipe(data, run_dir, minutes: float = 6.0, inverter_minutes: float = 1.0,
+               device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
+               aux_dir: str = "neural/weights/real") -> list:
+    """The GAR's stages: [[tiny-gpu, tiny128-gpu, tiny-gpu with lambda_n = 0], [the first
+    two's inverters]] (see the module); ``max_steps``, ``batch_size`` and ``overrides``
+    (``KEY=VALUE`` config fields of every GAR, e.g. smaller widths) shrink it for a test."""
+    limit = ["--max-steps", max_steps] if max_steps else []
+    limit += ["--batch-size", batch_size] if batch_size else []
+    gars = [("gar64", "tiny-gpu", [], "gar_64"), ("gar128", "tiny128-gpu", [], "gar_128"),
+            ("gar64_n0", "tiny-gpu", ["lambda_n=0"], "gar_64_no_norm_cycle")]
+    stages = [[], []]
+    for name, config, extra, stem in gars:
+        gdir = Path(run_dir) / name
+        stages[0].append(_job(name, "neural.train", [
+            "--config", config, "--data", data, "--aux-dir", aux_dir, "--set",
+            *overrides, *extra, "--out", gdir, "--device", device, "--amp",
+            "bf16" if device != "cpu" else "none", "--channels-last", "--steps", 10**6,
+            "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit], minutes,
+            {"generator.pt": f"{stem}.pt", "summary.json": f"summary_{stem}.json"}, run_dir))
+        if extra:
+            continue
+        tag = stem[4:]
+        stages[1].append(_job(f"inv{tag}", "neural.train_inverter", [
+            "--generator", gdir / "generator.pt", "--data", data, "--out",
+            Path(run_dir) / f"inv{tag}", "--device", device, "--batch-size", batch_size or 64,
+            "--pool", 2048, "--held-out", 64, "--steps", max_steps or 10**6, "--max-minutes",
+            inverter_minutes, "--eval-steps", max_steps or 100, "-q"], inverter_minutes,
+            {"inverter.pt": f"inverter_{tag}.pt", "metrics.json": f"summary_inv_{tag}.json"},
+            run_dir))
+    return stages
+
+
+RECIPES = {"gar": gar_recipe}
+
+
+def _copy_outputs(job, out: Path, seen: dict) -> None:
+    """Copy the job's outputs that changed since the last call (by mtime) into ``out``."""
+    folder = Path(job["dir"])
+    for src, dest in job["outputs"].items():
+        path = folder / src
+        if not path.is_file():
+            continue
+        stamp = path.stat().st_mtime_ns
+        if seen.get(dest) != stamp:
+            tmp = out / f".{dest}.tmp"
+            shutil.copyfile(path, tmp)
+            os.replace(tmp, out / dest)
+            seen[dest] = stamp
+
+
+def run_recipe(stages: list, out, python: str = sys.executable) -> dict:
+    """Run ``stages`` (lists of jobs, stage by stage, a stage's jobs side by side), copying
+    outputs into ``out`` as they appear -> the ``recipe.json`` dict (also written)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    report = {"python": python, "jobs": {}, "environment": _environment()}
+    seen: dict = {}
+    with open(out / "log.txt", "a") as log:
+        for stage in stages:
+            procs = []
+            for job in stage:
+                Path(job["dir"]).mkdir(parents=True, exist_ok=True)
+                cmd = [python, "-m", job["module"], *job["args"]]
+                log.write(f"$ {' '.join(cmd)}\n")
+                log.flush()
+                env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+                procs.append((job, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                                     env=env), time.monotonic(), cmd))
+            running, last_copy = list(procs), time.monotonic()
+            while running:
+                time.sleep(1)
+                copy = time.monotonic() - last_copy > POLL_SECONDS
+                last_copy = time.monotonic() if copy else last_copy
+                for job, proc, t0, cmd in list(running):
+                    if copy:
+                        _copy_outputs(job, out, seen)
+                    over = time.monotonic() - t0 > 60 * (job["minutes"] + GRACE_MINUTES)
+                    if proc.poll() is None and over:
+                        proc.kill()
+                        proc.wait()
+                        log.write(f"[{job['name']}] killed after {job['minutes']} + "
+                                  f"{GRACE_MINUTES} min\n")
+                    if proc.poll() is not None:
+                        running.remove((job, proc, t0, cmd))
+                        _copy_outputs(job, out, seen)
+                        entry = {"command": " ".join(cmd), "returncode": proc.returncode,
+                                 "wall_seconds": round(time.monotonic() - t0, 1)}
+                        for src, dest in job["outputs"].items():
+                            if dest.endswith(".json") and (out / dest).is_file():
+                                entry[src.replace(".json", "")] = json.loads(
+                                    (out / dest).read_text())
+                        report["jobs"][job["name"]] = entry
+                        log.flush()
+                        _write_json(out / "recipe.json", report)
+    # the per-job JSON files are in recipe.json: keep the returned files few
+    for job in (j for stage in stages for j in stage):
+        for dest in job["outputs"].values():
+            if dest.endswith(".json"):
+                (out / dest).unlink(missing_ok=True)
+    _write_json(out / "recipe.json", report)
+    return report
+
+
+def _write_json(path: Path, data) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def _environment() -> dict:
+    """torch's version and the CUDA device's name, where there is one."""
+    try:
+        import torch
+    except ImportError:
+        return {}
+    env = {"torch": torch.__version__, "cuda": torch.cuda.is_available()}
+    if torch.cuda.is_available():
+        env["device"] = torch.cuda.get_device_name(0)
+    return env
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m neural.gpu_recipe",
+                                description=__doc__.splitlines()[0])
+    p.add_argument("recipe", choices=sorted(RECIPES))
+    p.add_argument("--data", required=True, help="the training pack (neural.real_faces)")
+    p.add_argument("--out", required=True, help="output folder (weights, grids, recipe.json)")
+    p.add_argument("--runs", default="runs/gpu-recipe",
+                   help="working folder of the jobs (checkpoints, full logs)")
+    p.add_argument("--minutes", type=float, default=6.0, help="training minutes of each network")
+    p.add_argument("--inverter-minutes", type=float, default=1.0)
+    p.add_argument("--device", default="cuda")
+    p.add_argument("--max-steps", type=int, help="N steps of each job instead (tests)")
+    p.add_argument("--batch-size", type=int, help="every job's batch size (tests)")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="config fields of every GAR (tests: smaller networks)")
+    add_verbosity_arguments(p)
+    return p
+
+
+@one_line_errors("neural.gpu_recipe")
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    configure(verbosity(args))
+    if not Path(args.data).is_file():
+        raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
+    stages = RECIPES[args.recipe](args.data, args.runs, minutes=args.minutes,
+                                  inverter_minutes=args.inverter_minutes, device=args.device,
+                                  max_steps=args.max_steps, batch_size=args.batch_size,
+                                  overrides=args.set)
+    report = run_recipe(stages, args.out)
+    failed = [k for k, v in report["jobs"].items() if v["returncode"] != 0]
+    print(json.dumps({k: {"returncode": v["returncode"], "wall_seconds": v["wall_seconds"]}
+                      for k, v in report["jobs"].items()}))
+    if failed:
+        print(f"neural.gpu_recipe: error: {', '.join(failed)} failed (see "
+              f"{Path(args.out) / 'log.txt'})", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
