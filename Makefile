@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 OUT := out
 DATA := ../shared/data
 
-.PHONY: install demo test bench clean system-deps gar-data gar-gpu
+.PHONY: install demo test bench clean system-deps gar-data gar-data-128 gar-gpu
 
 install: $(STAMP)
 
@@ -42,20 +42,30 @@ demo: $(STAMP)
 		--model sfm --out-mesh $(OUT)/fit.obj --report $(OUT)/fit.json --overlay $(OUT)/overlay.png
 	@echo "wrote $(OUT)/sample.obj $(OUT)/model.json $(OUT)/fit.obj $(OUT)/fit.json $(OUT)/overlay.png"
 
-# the GAR's real training pack (docs/neural.md, "Real training data"); ~30 min on one core
+# the GAR's real training pack (docs/neural.md, "Real training data"); ~5 min on the 2 cores
 gar-data: $(STAMP)
-	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real64.npz
+	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real64.npz --workers 2
+
+# the same photos at 128 px for the GPU recipe, normals stored at 64 px so that the pack (56 MiB)
+# and the tree stay within the 64 MiB that reach a GPU machine (docs/neural.md, "GPU recipe");
+# refits nothing after gar-data (the fits are cached in gar_data/)
+gar-data-128: $(STAMP)
+	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real128.npz --resolution 128 \
+		--normal-resolution 64 --jpeg-quality 60 --max-mib 57 --workers 2
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# the GAR on the packed real photos, on one GPU (<= 8 min; neural/README.md). Runs with the
-# GPU machine's own Python (torch with CUDA), not the CPU-only .venv; the pack is built here
-# by `make gar-data` into the ignored gar_data/ and travels with the working tree
+# the GPU recipe (docs/neural.md, "GPU recipe"): the 64-px, 128-px and lambda_n = 0 GARs side by
+# side, then two inverters, in about 8 minutes on one GPU; weights, recipe.json and log.txt in
+# GPU_OUT. Runs with the GPU machine's own Python (torch with CUDA), not the CPU-only .venv;
+# the pack is built here by `make gar-data-128` into the ignored gar_data/ and travels with
+# the working tree
 GPU_PYTHON ?= python3
+GPU_OUT ?= runs/gpu
 gar-gpu:
-	$(GPU_PYTHON) -m neural.train --config tiny-gpu --data gar_data/real64.npz --out runs/gar-gpu \
-		--device cuda --amp bf16 --channels-last --max-minutes 7
+	$(GPU_PYTHON) -m neural.gpu_recipe gar --data gar_data/real128.npz --out $(GPU_OUT) \
+		--runs runs/gpu-recipe --minutes 5 --inverter-minutes 1 --device cuda
 
 clean:
 	rm -rf $(OUT) .pytest_cache

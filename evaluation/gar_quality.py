@@ -165,7 +165,11 @@ def sample_grid(G, normals, path, n_latents: int = 6, seed: int = 0) -> Path:
     rows = []
     with torch.no_grad():
         for n in normals:
-            rows += [normal_to_rgb(n[None]), G(n[None].expand(n_latents, -1, -1, -1), z, noise=noise)]
+            images = G(n[None].expand(n_latents, -1, -1, -1), z, noise=noise)
+            # a G of another resolution than the normal maps: the map shown at G's size
+            shown = torch.nn.functional.interpolate(normal_to_rgb(n[None]), size=images.shape[-2:],
+                                                    mode="bilinear", align_corners=False)
+            rows += [shown, images]
     save_grid(torch.cat(rows), path, ncol=n_latents + 1)
     return Path(path)
 
@@ -223,20 +227,34 @@ def real_faces(data, n_faces: int, seed: int, model: str = "sfm") -> tuple:
 
 @torch.no_grad()
 def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8, seed=12345,
-             grid=None, batch_size: int = 16, inception=None, data=None) -> dict:
+             grid=None, batch_size: int = 16, inception=None, data=None, aux_size=None) -> dict:
     """Metrics of each generator in ``generators`` (name -> Generator) and of the baselines
     on ``n_faces`` held-out faces (pairs) — synthetic (:func:`synthetic_faces`), or a real pack's
     photos with ``data`` (:func:`real_faces`, which adds ``face_fd``):
     ``{metric: {renderer: value}}`` for the metrics of :data:`METRICS`; ``inception`` (a
-    feature network, see :func:`load_inception`) adds ``fid_inception``."""
+    feature network, see :func:`load_inception`) adds ``fid_inception``.
+
+    Generators of several resolutions compare at the faces' resolution R (the pack's, or the
+    first generator's): each takes the R-px normal maps (G resizes them per block) and its
+    renders are area-downsampled to R. The aux networks' metrics see images and normal maps
+    area-downsampled to ``aux_size`` px (default R; 64 for the 64-px aux networks judging
+    128-px faces)."""
+    from neural.losses import area_downsample
+
     cfg = next(iter(generators.values())).config
     if data is None:
         faces, baselines, real, index = synthetic_faces(cfg, n_faces, seed, batch_size)
     else:
         faces, baselines, real, index = real_faces(data, n_faces, seed, cfg.model)
     normals, normals_b = faces["normals"], faces["normals_b"]
-    n_faces = len(normals)
-    emb = lambda x: torch.cat([aux["R"](c) for c in x.split(batch_size)]).numpy()  # noqa: E731
+    n_faces, R = len(normals), normals.shape[-1]
+    aux_size = aux_size or R
+    small_normals = area_downsample(normals, aux_size, unit=True)
+
+    def small(images):
+        return area_downsample(images, aux_size)
+
+    emb = lambda x: torch.cat([aux["R"](small(c)) for c in x.split(batch_size)]).numpy()  # noqa: E731
     real_feats = inception_features(inception, real, batch_size) if inception is not None else None
 
     def distances(images) -> dict:
@@ -248,8 +266,8 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
                                                     real_feats)
         return out
 
-    per = {name: {"normal_consistency_deg": normal_consistency(images, normals, aux),
-                  "identity_consistency_cos": identity_consistency(images, images_b, aux),
+    per = {name: {"normal_consistency_deg": normal_consistency(small(images), small_normals, aux),
+                  "identity_consistency_cos": identity_consistency(small(images), small(images_b), aux),
                   **distances(images)}
            for name, (images, images_b) in baselines.items()}
     for name, G in generators.items():
@@ -259,20 +277,21 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
         noise = G.make_noise(batch_size, gen)
 
         def run(n, zz):
-            return G(n, zz, noise=[e[: len(n)] for e in noise])
+            return area_downsample(G(n, zz, noise=[e[: len(n)] for e in noise]), R)
 
         fake = torch.cat([run(n, zz) for n, zz in zip(normals.split(batch_size), z.split(batch_size))])
         fake_b = torch.cat([run(n, zz) for n, zz in zip(normals_b.split(batch_size), z.split(batch_size))])
         k_faces = min(n_faces, batch_size)
         zs = torch.randn(n_latents, k_faces, cfg.z_dim, generator=gen)
-        per_latent = torch.stack([run(normals[:k_faces], zk) for zk in zs])
+        per_latent = torch.stack([small(run(normals[:k_faces], zk)) for zk in zs])
         per[name] = {
-            "normal_consistency_deg": normal_consistency(fake, normals, aux),
+            "normal_consistency_deg": normal_consistency(small(fake), small_normals, aux),
             "landmark_consistency_px": landmark_consistency(per_latent, aux, index),
-            "identity_consistency_cos": identity_consistency(fake, fake_b, aux),
+            "identity_consistency_cos": identity_consistency(small(fake), small(fake_b), aux),
             **distances(fake),
         }
-    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": cfg.resolution,
+    report = {"n_faces": n_faces, "n_latents": n_latents, "resolution": R, "aux_resolution": aux_size,
+              "generator_resolutions": {k: G.config.resolution for k, G in generators.items()},
               "faces": "synthetic" if data is None else f"held-out photos of {data}",
               "n_reference": len(real)}
     for metric in METRICS:
@@ -322,12 +341,13 @@ def main(argv=None) -> int:
             raise InputError(f"--baseline expects a new NAME=PATH, got {item!r}")
         gens[name] = load_generator(path, not args.raw)
     inception = load_inception(args.inception) if args.inception else None
+    aux_size = gens["gar"].config.aux_size
     aux = {n: load_aux(n, None if args.aux_dir is None else Path(args.aux_dir) / f"aux_{n}.pt",
-                       resolution=gens["gar"].config.resolution) for n in NAMES}
+                       resolution=aux_size) for n in NAMES}
     out = Path(args.report)
     grid = Path(args.grid) if args.grid else out.with_suffix(".png")
     report = evaluate(gens, aux, n_faces=args.faces, seed=args.seed, grid=grid,
-                      inception=inception, data=args.data)
+                      inception=inception, data=args.data, aux_size=aux_size)
     # the validation metrics our checkpoints store (None for other networks)
     report["aux_validation"] = {n: getattr(aux[n], "meta", {}).get("metrics") for n in NAMES}
     report["generators"] = {"gar": str(args.generator),

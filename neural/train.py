@@ -204,9 +204,14 @@ class Trainer:
 
     def weights(self) -> dict:
         """What ``generator.pt`` holds: the config, the step, G_ema (with its mapping network
-        M) as ``"G"`` and the discriminator ``"D"`` (to fine-tune or continue adversarially)."""
+        M) as ``"G"`` and the discriminator ``"D"`` (to fine-tune or continue adversarially),
+        as CPU tensors."""
+        # CPU tensors: a file written on a GPU must load where there is none
+        def cpu(module):
+            return {k: v.detach().cpu() for k, v in module.state_dict().items()}
+
         return {"config": self.config.to_dict(), "step": self.step,
-                "G": self.G_ema.state_dict(), "D": self.D.state_dict()}
+                "G": cpu(self.G_ema), "D": cpu(self.D)}
 
     def save(self) -> Path:
         from morphable.io.atomic import atomic_path

@@ -185,3 +185,32 @@ def test_real_photo_report_has_floors_and_face_fd(pack_maker, tmp_path):
     n[0, 2, 1:3, 1:3] = 1
     img = lambert(n, background=-0.5)
     assert float(img[0, :, 0, 0].max()) == -0.5 and bool((img[0, :, 1, 1] > -0.5).all())
+
+
+def test_report_compares_generators_of_two_resolutions(pack_maker, tmp_path):
+    """A 64-px G beside a 32-px one on a 32-px pack with 16-px aux networks: the 64-px renders
+    are area-downsampled to the pack's 32 px, the aux networks see 16 px, the grid shows the
+    first G at its own size."""
+    pytest.importorskip("dlib")
+    from PIL import Image
+
+    from evaluation.gar_quality import evaluate
+    from neural.auxnets import NAMES, build_aux
+    from neural.config import get_config
+    from neural.gar import Generator
+
+    pack = pack_maker(tmp_path / "p.npz", n=8, resolution=32, person=np.arange(8),
+                      held_out=np.arange(8) >= 4)
+    torch.manual_seed(0)
+    small = dict(channel_base=256, channel_max=32, z_dim=16, w_dim=16, mapping_layers=2)
+    gens = {"gar": Generator(get_config("tiny", resolution=64, aux_resolution=16, **small)).eval(),
+            "low": Generator(get_config("tiny", resolution=32, **small)).eval()}
+    aux = {n: build_aux(n, width=4).eval() for n in NAMES}
+    seen = []
+    for net in aux.values():
+        net.register_forward_pre_hook(lambda m, a: seen.append(a[0].shape[-1]))
+    r = evaluate(gens, aux, n_faces=4, n_latents=2, data=pack, aux_size=16, grid=tmp_path / "g.png")
+    assert set(seen) == {16} and r["resolution"] == 32 and r["aux_resolution"] == 16
+    assert r["generator_resolutions"] == {"gar": 64, "low": 32}
+    assert all(np.isfinite(r["face_fd"][k]) for k in ("gar", "low"))
+    assert Image.open(tmp_path / "g.png").size == (7 * 64, 2 * 64)
