@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from morphable.errors import one_line_errors
+from morphable.errors import MorphableError, one_line_errors
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SETS = ("image_0010", "london", "aflw2000", "london-pairs", "sizes")
@@ -117,8 +117,12 @@ def main(argv=None) -> int:
         elif s == "london":
             rows = [one_photo(p, None, args.size, args.model) for p in london]
         elif s == "aflw2000":
-            rows = [one_photo(p, None, args.size, args.model)
-                    for p in sorted((DATA / "aflw2000").glob("image*.jpg"))[:args.n]]
+            rows, failed = [], []
+            for p in sorted((DATA / "aflw2000").glob("image*.jpg"))[:args.n]:
+                try:
+                    rows.append(one_photo(p, None, args.size, args.model))
+                except MorphableError as e:  # no face found: counted, not measured
+                    failed.append(f"{p.name}: {e}")
         elif s == "london-pairs":
             rows = []
             for p in london:
@@ -129,6 +133,8 @@ def main(argv=None) -> int:
             rows = [dict(one_photo(images / "image_0010.png", images / "image_0010.pts", size,
                                    args.model), size=size) for size in (128, 256, 512, 1024)]
         entry = {"rows": rows, "seconds": time.time() - t}
+        if s == "aflw2000":
+            entry["failed"] = failed
         if s == "london-pairs":
             entry["summary"] = {k: summary(rows, k) for k in ("blended", "neutral only", "smiling only")}
         elif s != "sizes":

@@ -305,6 +305,11 @@ def texture_from_views(model, vertices, cameras, images, size: int = 512, *,
     colour[mirrored] = acc[1, mirrored] / wsum[1, mirrored, None]
     known = (seen | mirrored).astype(np.float64)
     image = push_pull_fill(colour.reshape(size, size, 3), known.reshape(size, size))
+    # the untextured triangles' texel (ICT: eyes, mouth, back of the head): the face's median
+    # colour rather than whatever the photo shows next to the layout (often hair)
+    i, j = int((1 - uv[-1, 1]) * size), int(uv[-1, 0] * size)
+    if not table.mask[i, j]:
+        image[i, j] = np.median(colour[seen], 0)
     return PhotoTexture(image=np.clip(image, 0, 1).astype(np.float32),
                         confidence=best.reshape(size, size).astype(np.float32),
                         mirrored=mirrored.reshape(size, size), layout=table.mask.copy(),
