@@ -43,9 +43,32 @@ def _polydata(vertices, triangles):
     return pv.PolyData(np.asarray(vertices, dtype=np.float64), faces)
 
 
+def _textured(vertices, triangles, texture):
+    """(PolyData split along UV seams with its texture coordinates, pyvista Texture)."""
+    import pyvista as pv
+
+    from .io.mesh import uv_unwelded
+    from .raster import as_texture
+
+    try:
+        uv, tuv, image = texture
+    except (TypeError, ValueError):
+        raise InputError("texture must be (uv, triangle_uv, image)") from None
+    t = np.asarray(triangles, dtype=np.int64)
+    uv = np.asarray(uv, dtype=np.float64)
+    tuv = t if tuv is None else np.asarray(tuv, dtype=np.int64)
+    if uv.ndim != 2 or uv.shape[1] != 2 or tuv.shape != t.shape or tuv.max() >= len(uv):
+        raise InputError(f"texture uv must be (T, 2) with triangle_uv {t.shape} ids into it")
+    v, f, vuv = uv_unwelded(vertices, t, uv, tuv)
+    poly = _polydata(v, f)
+    poly.active_texture_coordinates = vuv
+    img = np.round(255 * np.clip(as_texture(image), 0, 1)).astype(np.uint8)
+    return poly, pv.numpy_to_texture(img)
+
+
 def show_mesh(vertices, triangles, *, landmarks=None, scan=None, errors=None,
               error_range=None, image=None, view: str = "front", size=(1024, 768),
-              screenshot=None, title: str | None = None):
+              screenshot=None, title: str | None = None, texture=None):
     """Draw a mesh with optional landmarks, an overlaid scan and a per-vertex error map.
 
     Parameters
@@ -60,6 +83,8 @@ def show_mesh(vertices, triangles, *, landmarks=None, scan=None, errors=None,
     view : "front", "left", "right" or "top"
     size : (width, height) pixels
     screenshot : path or None — write a PNG off-screen (atomically) instead of opening a window
+    texture : (uv (T, 2), triangle_uv (F, 3) or None, image (h, w, 3) or path) or None — the
+        surface coloured by a texture through its UVs (v up), unless ``errors`` are drawn
 
     Returns
     -------
@@ -87,6 +112,9 @@ def show_mesh(vertices, triangles, *, landmarks=None, scan=None, errors=None,
         plotter.add_mesh(mesh, scalars="error (mm)", cmap="viridis", clim=(lo, max(hi, lo + 1e-6)),
                          nan_color="lightgrey", smooth_shading=True,
                          scalar_bar_args={"title": "error (mm)", "color": "black"})
+    elif texture is not None:
+        textured, tex = _textured(v, triangles, texture)
+        plotter.add_mesh(textured, texture=tex, smooth_shading=True, ambient=0.35, diffuse=0.65)
     else:
         plotter.add_mesh(mesh, color="#d9b99b", smooth_shading=True, specular=0.2)
     if scan is not None:

@@ -107,6 +107,12 @@ def make_fixtures(d: Path) -> None:
         f["x"] = [1, 2]
     (d / "truncated.pkl").write_bytes(pickle.dumps({"v_template": [1.0] * 1000})[:100])
     (d / "other.pkl").write_bytes(pickle.dumps({"a": 1}))
+    from morphable.io.native import save_model_npz
+    from morphable.model import MorphableModel
+
+    save_model_npz(MorphableModel.from_arrays(mean=np.eye(3), triangles=[[0, 1, 2]], name="nouv"),
+                   d / "nouv.npz")
+    (d / "fit1.json").write_text(json.dumps({"model": "sfm", "frames": [{"image": "face.png"}]}))
     (d / "ictdir").mkdir()
     (d / "ictdir" / "generic_neutral_mesh.obj").write_text("")
 

@@ -28,6 +28,10 @@ def add_parser(sub):
                    help="fit each image on its own; the mesh is the average identity")
     p.add_argument("--out-mesh", help="output mesh (.obj with UVs, .ply, .stl)")
     p.add_argument("--report", help="output JSON report")
+    p.add_argument("--out-texture", metavar="PNG",
+                   help="output .png: the UV texture from the photos (the model needs UVs); an "
+                        ".obj --out-mesh then names it through an .mtl beside it")
+    p.add_argument("--texture-size", type=int, default=512, help="texels per side (default 512)")
     p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "
                                      "(several images: NAME_0.png, NAME_1.png, ...)")
     p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
@@ -54,6 +58,16 @@ def run(args):
         from ..overlay import check_overlay_path
 
         check_overlay_path(args.overlay)
+    model = model_from(args)
+    if args.out_texture:
+        from .bake import check_outputs
+
+        check_outputs(args.out_texture)
+        if model.uv is None:
+            raise InputError(f"{args.model}: the model has no UV coordinates, so --out-texture "
+                             "cannot be written")
+        if not 8 <= args.texture_size <= 8192:
+            raise InputError(f"--texture-size must be 8..8192 texels, got {args.texture_size}")
     for out in (args.out_mesh, args.report):
         # check the outputs' folders first: either every output is written or none
         if out and not Path(out).resolve().parent.is_dir():
@@ -70,7 +84,7 @@ def run(args):
         raise InputError("--loss-weight needs --refine")
     weights = parse_loss_weights(args.loss_weight, "--loss-weight")
     images = [Path(p) for p in args.images]
-    res, report = fit_files(images, args.landmarks, model=model_from(args), camera=args.camera,
+    res, report = fit_files(images, args.landmarks, model=model, camera=args.camera,
                             focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
                             shared_identity=not args.independent,
                             landmark_detector=args.landmark_detector, face_detector=args.face_detector,
@@ -83,13 +97,24 @@ def run(args):
         style = None if args.overlay_style == "none" else args.overlay_style
         report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, images, mesh=style,
                                                                    crop=args.overlay_crop)]
-    write_fit(res, report, mesh=args.out_mesh, report_path=args.report)
+    texture = None
+    if args.out_texture:
+        from ..texture import extract_texture
+
+        texture = extract_texture(res, images, size=args.texture_size)
+        report["texture"] = {"path": str(args.out_texture), "size": args.texture_size,
+                             "observed": float(texture.observed[texture.layout].mean()),
+                             "mirrored": float(texture.mirrored[texture.layout].mean()),
+                             "runtime_ms": texture.runtime_ms}
+    write_fit(res, report, mesh=args.out_mesh, report_path=args.report, texture=texture,
+              texture_path=args.out_texture)
     for f in report["frames"]:
         print(f"{f['image']}: landmark RMSE {f['landmark_rmse_px']:.2f} px, yaw {f['yaw_deg']:.1f}, "
               f"pitch {f['pitch_deg']:.1f}, roll {f['roll_deg']:.1f} deg")
     print(f"{res.iterations} iterations, {res.runtime_ms:.1f} ms"
           + (f"; wrote {args.out_mesh}" if args.out_mesh else "")
-          + (f" {args.report}" if args.report else ""))
+          + (f" {args.report}" if args.report else "")
+          + (f" {args.out_texture}" if args.out_texture else ""))
     return 0
 
 

@@ -25,10 +25,10 @@ def add_parser(sub):
     p.add_argument("--texture", help="texture image for the mesh's UVs (default: the OBJ's material map)")
     p.add_argument("--no-texture", action="store_true", help="ignore the OBJ's material map")
     p.add_argument("--color", default="0.75,0.75,0.75", help="surface colour r,g,b in [0, 1]")
-    p.add_argument("--light", action="append", metavar="X,Y,Z[,I]",
+    p.add_argument("--light", action="append", metavar="X,Y,Z[,I]|none",
                    help="directional light towards X,Y,Z in the camera frame (+z to the viewer), "
                         "intensity I (default 0.75); repeatable; write --light=-1,0,1 for a "
-                        "negative first number")
+                        "negative first number; none: unlit, the colour or texture as it is")
     p.add_argument("--ambient", type=float, default=0.3, help="ambient light with --light")
     p.add_argument("--sh", metavar="C0,...,C8", help="9 (grey) or 27 (RGB, per coefficient r,g,b) "
                    "SH coefficients instead of --light; 1,0,...,0 is uniform white")
@@ -41,7 +41,7 @@ def add_parser(sub):
 def run(args):
     import numpy as np
 
-    from ..raster import DirectionalLight, render, save_image_png
+    from ..raster import DirectionalLight, as_texture, render, save_image_png
 
     check_outputs(args.out)
     if args.supersample is None or args.supersample < 1:
@@ -54,11 +54,21 @@ def run(args):
             raise InputError(f"{tex_path}: no such texture file")
         if mesh.uv is None:
             raise InputError(f"{args.mesh or args.fit}: the mesh has no UV coordinates for --texture")
-        texture = (mesh.uv, mesh.triangle_uv, tex_path)
+        uv, tuv, image = mesh.uv, mesh.triangle_uv, as_texture(tex_path)
+        if mesh.model is not None:
+            # a model's texture from photos has its own layout (ICT: the face tile only)
+            from ..texture import texture_layout
+
+            uv, tuv, _ = texture_layout(mesh.model, image.shape[0])
+        texture = (uv, tuv, image)
     color = _numbers(args.color, (3,), "--color")
     if args.sh:
         c = _numbers(args.sh, (9, 27), "--sh")
         light = np.array(c).reshape(9, 3) if len(c) == 27 else np.array(c)
+    elif args.light and "none" in args.light:
+        if len(args.light) > 1:
+            raise InputError("--light none: give no other --light")
+        light = np.eye(9)[0]  # uniform white SH: the albedo as it is
     elif args.light:
         light = []
         for item in args.light:

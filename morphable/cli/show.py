@@ -20,6 +20,9 @@ def add_parser(sub):
     p.add_argument("--landmarks", action="store_true", help="draw the model's landmark vertices")
     p.add_argument("--errors", help="per-vertex errors: .npy (V,) in mm, or an evaluation report .json "
                                     "with 'per_vertex_errors' naming such a file")
+    p.add_argument("--texture", help="texture image for the mesh's UVs (default: the OBJ's "
+                                     "material map; a fit report: e.g. fit --out-texture's)")
+    p.add_argument("--no-texture", action="store_true", help="ignore the OBJ's material map")
     p.add_argument("--view", default="front", choices=["front", "left", "right", "top"])
     p.add_argument("--screenshot", help="write a PNG instead of opening a window")
     p.add_argument("--size", default="1024x768", help="window or screenshot size WIDTHxHEIGHT")
@@ -71,9 +74,18 @@ def run(args):
 
     size = parse_size(args.size)
     path = Path(args.mesh)
+    texture = None
+    if args.texture and not Path(args.texture).is_file():
+        raise InputError(f"{args.texture}: no such texture file")
     if path.suffix == ".json":
         model, vertices = _from_fit(path, args.frame)
         triangles = model.triangles
+        if args.texture and not args.no_texture:
+            from ..raster import as_texture
+            from ..texture import texture_layout
+
+            image = as_texture(args.texture)
+            texture = (*texture_layout(model, image.shape[0])[:2], image)
     else:
         mesh = read_mesh(path)
         vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -81,6 +93,17 @@ def run(args):
         if model is not None and model.n_vertices != len(vertices):
             raise InputError(f"{path}: {len(vertices)} vertices, model {model.name} has "
                              f"{model.n_vertices}: landmarks need a mesh of the model")
+        if path.suffix.lower() == ".obj" and not args.no_texture:
+            from ..raster.inputs import load_mesh
+
+            obj = load_mesh(path)
+            image = args.texture or obj.texture
+            if image is not None and obj.uv is None:
+                raise InputError(f"{path}: the mesh has no UV coordinates for --texture")
+            if image is not None:
+                # the UV indices are read_obj's: draw its vertices and triangles with them
+                vertices, triangles = obj.vertices, obj.triangles
+                texture = (obj.uv, obj.triangle_uv, image)
     landmarks = None
     if args.landmarks:
         ids = model.landmark_ids[model.landmark_ids >= 0]
@@ -98,7 +121,7 @@ def run(args):
         image = read_image(args.image)
     out = show_mesh(vertices, triangles, landmarks=landmarks, scan=scan, errors=errors,
                     image=image, view=args.view, size=size, screenshot=args.screenshot,
-                    title=path.name)
+                    title=path.name, texture=texture)
     if out:
         print(out)
     return 0

@@ -186,21 +186,34 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     return res, report
 
 
-def write_fit(result, report, mesh=None, report_path=None) -> list:
+def write_fit(result, report, mesh=None, report_path=None, texture=None,
+              texture_path=None) -> list:
     """Write the fitted mesh (one image: that frame; several: the shared neutral identity) and
-    the JSON report, each atomically. Returns the paths written."""
+    the JSON report, each atomically. Returns the paths written.
+
+    ``texture`` (a :class:`morphable.texture.PhotoTexture`) is written to ``texture_path``
+    (PNG) first; an OBJ ``mesh`` then carries the texture's UV layout and names the image
+    through a material library beside it (``NAME.mtl``)."""
     from ..io.atomic import atomic_path
     from ..io.mesh import write_mesh
 
-    for out in (mesh, report_path):
+    for out in (mesh, report_path, texture_path):
         # check every output's folder first: either every output is written or none
         if out and not Path(out).resolve().parent.is_dir():
             raise InputError(f"{out}: folder {Path(out).parent} does not exist")
     written = []
+    m = result.model
+    uv, tuv = m.uv, m.triangle_uv
+    if texture is not None and texture_path:
+        from ..texture import save_texture
+
+        save_texture(texture, texture_path)
+        written.append(Path(texture_path))
+        uv, tuv = texture.uv, texture.triangle_uv
     if mesh:
-        m = result.model
         verts = result.vertices(0) if result.n_frames == 1 else result.neutral_vertices()
-        write_mesh(mesh, verts, m.triangles, m.uv, m.triangle_uv)
+        material = texture_path if texture is not None and Path(mesh).suffix.lower() == ".obj" else None
+        write_mesh(mesh, verts, m.triangles, uv, tuv, texture=material)
         written.append(Path(mesh))
     if report_path:
         with atomic_path(report_path) as tmp:

@@ -8,17 +8,21 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["write_mesh", "read_mesh"]
+__all__ = ["write_mesh", "read_mesh", "uv_unwelded"]
 
 
-def _uv_unwelded(vertices, triangles, uv, triangle_uv):
-    """Split vertices along UV seams so that each output vertex has one UV (OBJ/PLY need it)."""
+def uv_unwelded(vertices, triangles, uv, triangle_uv):
+    """Split vertices along UV seams so that each output vertex has one UV (OBJ/PLY need it).
+
+    ``vertices`` (V, 3), ``triangles`` (F, 3), ``uv`` (T, 2), ``triangle_uv`` (F, 3) ->
+    (vertices (V', 3), triangles (F, 3), uv (V', 2)) with one UV per vertex."""
     pairs = np.stack([triangles.ravel(), triangle_uv.ravel()], 1)
     unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
     return vertices[unique[:, 0]], inverse.reshape(-1, 3), uv[unique[:, 1]]
 
 
-def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colors=None) -> Path:
+def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colors=None,
+               texture=None) -> Path:
     """Write a triangle mesh; the format follows the suffix (.obj, .ply, .stl, .off, .glb).
 
     Parameters
@@ -28,6 +32,10 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
     uv : (V, 2) or (T, 2) float in [0, 1], optional
     triangle_uv : (F, 3) int ids into ``uv`` when UVs are not per vertex
     vertex_colors : (V, 3) or (V, 4) uint8 or float in [0, 1], optional
+    texture : path of a texture image, optional (OBJ with ``uv`` only): the OBJ names a
+        material library ``NAME.mtl``, written beside it, whose material maps this image
+        (``map_Kd``, a path relative to the OBJ's folder), so that viewers and
+        ``morphable render`` draw it
 
     The file is written atomically; with per-triangle UVs, vertices on UV seams are
     duplicated (vertex order then differs from the model's).
@@ -45,7 +53,7 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
     if uv is not None:
         uv = np.asarray(uv, dtype=np.float64)
         if triangle_uv is not None:
-            v, f, uv = _uv_unwelded(v, f, uv, np.asarray(triangle_uv))
+            v, f, uv = uv_unwelded(v, f, uv, np.asarray(triangle_uv))
         visual = trimesh.visual.TextureVisuals(uv=uv)
     mesh = trimesh.Trimesh(v, f, visual=visual, process=False)
     if vertex_colors is not None and visual is None:
@@ -53,15 +61,36 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
     suffix = path.suffix.lower().lstrip(".")
     if suffix not in ("obj", "ply", "stl", "off", "glb", "gltf"):
         raise InputError(f"{path}: unknown mesh format {path.suffix!r} (.obj .ply .stl .off .glb)")
+    if texture is not None and (suffix != "obj" or uv is None):
+        raise InputError(f"{path}: a texture needs an .obj mesh with UV coordinates")
     with atomic_path(path) as tmp:
         if suffix == "obj":
             text = trimesh.exchange.obj.export_obj(mesh, include_texture=True, include_normals=False)
-            # one file, no material: drop the references to a .mtl that is not written
-            tmp.write_text("".join(ln for ln in text.splitlines(True)
-                                   if not ln.startswith(("mtllib", "usemtl"))))
+            # trimesh's own material references name files it does not write here
+            lines = [ln for ln in text.splitlines(True) if not ln.startswith(("mtllib", "usemtl"))]
+            if texture is not None:
+                mtl = path.with_suffix(".mtl")
+                _write_mtl(mtl, texture)
+                first_face = next(i for i, ln in enumerate(lines) if ln.startswith("f "))
+                lines.insert(first_face, "usemtl face\n")
+                lines.insert(0, f"mtllib {mtl.name}\n")
+            tmp.write_text("".join(lines))
         else:
             mesh.export(tmp, file_type=suffix)
     return path
+
+
+def _write_mtl(path: Path, texture) -> None:
+    """A material library with one material ``face`` whose diffuse map is ``texture``
+    (relative to the library's folder, where the OBJ is)."""
+    import os
+
+    rel = Path(os.path.relpath(Path(texture).resolve(), path.resolve().parent)).as_posix()
+    if any(c.isspace() for c in rel):
+        raise InputError(f"{texture}: a texture path with spaces cannot be named in an .mtl file")
+    with atomic_path(path) as tmp:
+        tmp.write_text(f"newmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
+                       f"map_Kd {rel}\n")
 
 
 def read_mesh(path):

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Mesh", "load_mesh", "load_fit_frame"]
+__all__ = ["Mesh", "load_mesh", "load_fit_frame", "read_fit_report"]
 
 _MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
@@ -102,6 +102,20 @@ def _frame_camera(frame: dict, where: str):
         raise InputError(f"{where}: frame has no usable camera ({type(e).__name__}: {e})") from None
 
 
+def read_fit_report(path) -> dict:
+    """The JSON object of a fit report; InputError naming the file when it is not one."""
+    path = Path(path)
+    try:
+        report = json.loads(path.read_text())
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    except ValueError as e:
+        raise InputError(f"{path}: not a JSON fit report ({e})") from None
+    if not isinstance(report, dict):
+        raise InputError(f"{path}: not a JSON fit report")
+    return report
+
+
 def load_fit_frame(path, frame: int = 0, model=None):
     """Mesh and camera of one frame of a fit report (``morphable fit`` JSON).
 
@@ -118,14 +132,7 @@ def load_fit_frame(path, frame: int = 0, model=None):
     from ..io.registry import load_model
 
     path = Path(path)
-    try:
-        report = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
-    except ValueError as e:
-        raise InputError(f"{path}: not a JSON fit report ({e})") from None
-    if not isinstance(report, dict):
-        raise InputError(f"{path}: not a JSON fit report")
+    report = read_fit_report(path)
     model = model or load_model(report.get("model", "sfm"))
     frames = report.get("frames") or []
     cameras = report.get("cameras") or []

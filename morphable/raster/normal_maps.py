@@ -14,7 +14,7 @@ from ..normals import vertex_normals
 from .interpolate import interpolate
 from .visibility import Visibility, cached_mesh, check_mesh, uv_visibility, visibility
 
-__all__ = ["normal_map", "uv_normal_map", "uv_layout", "tangent_frames"]
+__all__ = ["layout_faces", "normal_map", "uv_normal_map", "uv_layout", "tangent_frames"]
 
 _TINY = 1e-24
 
@@ -246,15 +246,32 @@ def tangent_frames(vertices, triangles, uv, triangle_uv=None):
     return T, B
 
 
+def layout_faces(model_or_mesh) -> np.ndarray:
+    """(F,) bool: the triangles that one map of the UV layout holds — for a model with a
+    ``"face"`` segment (ICT) only that segment's, since its eyes and mouth interior share the
+    face's UV tile; else all of them.
+
+    >>> import morphable
+    >>> int(layout_faces(morphable.load_model("sfm")).sum())  # doctest: +SKIP
+    6736
+    """
+    from ..model import MorphableModel
+
+    triangles = np.asarray(uv_layout(model_or_mesh)[0], dtype=np.int64)
+    if not (isinstance(model_or_mesh, MorphableModel) and "face" in model_or_mesh.segments):
+        return np.ones(len(triangles), dtype=bool)
+    inside = np.zeros(model_or_mesh.n_vertices, dtype=bool)
+    inside[model_or_mesh.segments["face"]] = True
+    return inside[triangles].all(1)
+
+
 def _select_faces(model_or_mesh, triangles, triangle_uv, faces):
     from ..model import MorphableModel
 
     if faces is None:
         if not (isinstance(model_or_mesh, MorphableModel) and "face" in model_or_mesh.segments):
             return triangles, triangle_uv
-        inside = np.zeros(model_or_mesh.n_vertices, dtype=bool)
-        inside[model_or_mesh.segments["face"]] = True
-        faces = inside[triangles].all(1)
+        faces = layout_faces(model_or_mesh)
     faces = np.asarray(faces)
     if faces.dtype == bool and faces.shape != (len(triangles),):
         raise InputError(f"faces mask must have {len(triangles)} entries, got {faces.shape}")

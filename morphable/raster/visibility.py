@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import InputError
 from ..logs import import_open3d
 
-__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene"]
+__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene", "closest_points"]
 
 _MESHES: "list[CachedMesh]" = []  # most recently used last
 _MESH_CACHE_SIZE = 4
@@ -372,6 +372,37 @@ def cast_foreground(sc, rays):
     # Embree's (u, v) weight corners 1 and 2: p = (1 - u - v) p0 + u p1 + v p2
     bary = np.stack([1.0 - u - v, u, v], 1)
     return hits, np.take(tri.ravel(), hits), bary, np.take(t_hit.ravel(), hits)
+
+
+def closest_points(vertices, triangles, points):
+    """The nearest surface point of a mesh to each query point.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, mm
+    triangles : (F, 3) int
+    points : (N, 3) float, mm
+
+    Returns
+    -------
+    triangle : (N,) int64, the triangle of the nearest point
+    barycentric : (N, 3) float32, its weights on the triangle's corners
+    distance : (N,) float64, mm, from the query point
+
+    Examples
+    --------
+    >>> tri = np.array([[0., 0, 0], [10, 0, 0], [0, 10, 0]])
+    >>> t, b, d = closest_points(tri, [[0, 1, 2]], np.array([[2., 3, 5]]))
+    >>> int(t[0]), b.astype(float).round(2).tolist(), d.round(2).tolist()
+    (0, [[0.5, 0.2, 0.3]], [5.0])
+    """
+    o3d = _import_open3d()
+    v, t = check_mesh(vertices, triangles)
+    q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    ans = scene(v, t).compute_closest_points(o3d.core.Tensor(q.astype(np.float32)))
+    tri = ans["primitive_ids"].numpy().view(np.int32).astype(np.int64)
+    bary = _barycentric(ans["primitive_uvs"].numpy(), np.ones((len(q), 1), dtype=bool))
+    return tri, bary, np.linalg.norm(ans["points"].numpy() - q, axis=1)
 
 
 def _window_rays(camera, x0, x1, y0, y1, s, z0):
