@@ -149,3 +149,13 @@ def test_fit_out_texture_round_trip(tmp_path, data_dir):
     shot = np.asarray(Image.open(tmp_path / "shot.png").convert("RGB"), dtype=float)
     face = shot[(shot < 250).any(-1)]
     assert face[:, 0].mean() > face[:, 2].mean() + 20                          # textured
+
+
+def test_texture_path_with_spaces_is_refused_before_anything_is_written(tmp_path, data_dir):
+    (tmp_path / "a b").mkdir()
+    img = data_dir / "images" / "image_0010.png"
+    r = subprocess.run([sys.executable, "-m", "morphable.cli", "fit", str(img), "--landmarks",
+                        str(img.with_suffix(".pts")), "--out-mesh", "m.obj", "--out-texture",
+                        "a b/t.png"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "a b/t.png: a texture path with spaces" in r.stderr
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a b"]

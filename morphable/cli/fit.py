@@ -63,6 +63,10 @@ def run(args):
         from .bake import check_outputs
 
         check_outputs(args.out_texture)
+        if args.out_mesh and str(args.out_mesh).lower().endswith(".obj"):
+            from ..io.mesh import mtl_texture_reference
+
+            mtl_texture_reference(args.out_mesh, args.out_texture)    # before any file is written
         if model.uv is None:
             raise InputError(f"{args.model}: the model has no UV coordinates, so --out-texture "
                              "cannot be written")

@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["write_mesh", "read_mesh", "uv_unwelded"]
+__all__ = ["write_mesh", "read_mesh", "uv_unwelded", "mtl_texture_reference"]
 
 
 def uv_unwelded(vertices, triangles, uv, triangle_uv):
@@ -80,14 +80,22 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
     return path
 
 
+def mtl_texture_reference(mesh_path, texture) -> str:
+    """The name by which the ``.mtl`` beside ``mesh_path`` refers to ``texture``: its path
+    relative to the mesh's folder, POSIX style. InputError naming the texture when that path
+    holds white space, which .mtl files cannot name (call it before writing anything)."""
+    import os
+
+    rel = Path(os.path.relpath(Path(texture).resolve(), Path(mesh_path).resolve().parent)).as_posix()
+    if any(c.isspace() for c in rel):
+        raise InputError(f"{texture}: a texture path with spaces cannot be named in an .mtl file")
+    return rel
+
+
 def _write_mtl(path: Path, texture) -> None:
     """A material library with one material ``face`` whose diffuse map is ``texture``
     (relative to the library's folder, where the OBJ is)."""
-    import os
-
-    rel = Path(os.path.relpath(Path(texture).resolve(), path.resolve().parent)).as_posix()
-    if any(c.isspace() for c in rel):
-        raise InputError(f"{texture}: a texture path with spaces cannot be named in an .mtl file")
+    rel = mtl_texture_reference(path, texture)
     with atomic_path(path) as tmp:
         tmp.write_text(f"newmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
                        f"map_Kd {rel}\n")
