@@ -1,0 +1,147 @@
+"""morphable.video: videos read frame by frame, upright, with their timestamps; bad files
+answered with one line naming them. Every video here is written by the test itself."""
+import tracemalloc
+
+import numpy as np
+import pytest
+
+av = pytest.importorskip("av")
+
+from morphable.errors import InputError  # noqa: E402
+from morphable.video import (VideoFrame, is_video, iter_frames, probe, sample_frames,  # noqa: E402
+                             sample_indices, write_video)
+
+
+def frames(n, h=48, w=64):
+    """n frames: a white block in the top-left corner, frame i's number as the grey level
+    8 i of the bottom rows, so that a decoded frame tells which it is and which way up it is."""
+    for i in range(n):
+        a = np.zeros((h, w, 3), np.uint8)
+        a[:8, :16] = 255
+        a[-8:, 20:] = 8 * i % 256
+        yield a
+
+
+def number(frame: VideoFrame) -> int:
+    return int(round(frame.image[-6:-2, 24:-4].mean() / 8))
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    return write_video(tmp_path_factory.mktemp("v") / "clip.mp4", frames(30), fps=25)
+
+
+def test_probe_and_every_frame_in_order(clip):
+    info = probe(clip)
+    assert (info.width, info.height, info.n_frames, info.rotation_deg) == (64, 48, 30, 0)
+    assert info.fps == pytest.approx(25) and info.duration_s == pytest.approx(30 / 25, abs=0.05)
+    got = list(iter_frames(clip))
+    assert [f.index for f in got] == list(range(30))
+    assert [number(f) for f in got] == list(range(30))
+    np.testing.assert_allclose([f.time_s for f in got], np.arange(30) / 25, atol=1e-3)
+    assert got[3].image.shape == (48, 64, 3) and got[3].image.dtype == np.uint8
+    assert got[3].label == f"{clip}#3" and got[3].size == (64, 48)
+
+
+def test_uniform_sampling(clip):
+    np.testing.assert_array_equal(sample_indices(30, 5), [0, 7, 14, 22, 29])
+    got = sample_frames(clip, 5)
+    assert [f.index for f in got] == [0, 7, 14, 22, 29] == [number(f) for f in got]
+    assert len(sample_frames(clip, 100)) == 30          # a short video: all its frames
+    with pytest.raises(InputError, match="cannot sample 0 frames"):
+        sample_frames(clip, 0)
+    with pytest.raises(InputError, match=r"frame 40 asked for, the video has 30"):
+        list(iter_frames(clip, [3, 40]))
+
+
+def test_variable_frame_rate_keeps_each_frames_time(tmp_path):
+    times = np.r_[0, np.cumsum([1 / 30] * 4 + [0.1] * 5)]
+    path = write_video(tmp_path / "vfr.mkv", frames(10), times_s=times)
+    got = list(iter_frames(path))
+    np.testing.assert_allclose([f.time_s for f in got], times, atol=2e-3)
+    assert [number(f) for f in got] == list(range(10))
+
+
+@pytest.mark.parametrize("rotation, corner", [(90, "bottom-left"), (270, "top-right"), (180, "bottom-right")])
+def test_rotation_metadata_is_applied(tmp_path, rotation, corner):
+    path = write_video(tmp_path / "phone.mp4", frames(3), rotation_deg=rotation)
+    info = probe(path)
+    assert info.rotation_deg == rotation
+    assert (info.width, info.height) == ((48, 64) if rotation % 180 else (64, 48))
+    image = next(iter_frames(path)).image
+    assert image.shape == (info.height, info.width, 3)
+    y, x = np.argwhere(image[..., 0] > 128).mean(0)
+    h, w = image.shape[:2]
+    assert corner == f"{'top' if y < h / 2 else 'bottom'}-{'left' if x < w / 2 else 'right'}"
+
+
+def test_streaming_keeps_memory_flat(tmp_path):
+    path = write_video(tmp_path / "long.mp4", frames(150, 240, 320))
+    one = 240 * 320 * 3
+    tracemalloc.start()
+    n = sum(1 for _ in iter_frames(path))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert n == 150
+    assert peak < 10 * one, peak          # 150 frames would be 35 MB
+
+
+def _faststart(path, n=60):
+    """An mp4 with its index first, as cameras and streaming sites write them: cut, it still
+    opens and its header still counts n frames."""
+    out = av.open(str(path), "w", options={"movflags": "faststart"})
+    s = out.add_stream("libx264", rate=30)
+    s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+    for a in frames(n):
+        for p in s.encode(av.VideoFrame.from_ndarray(a, format="rgb24")):
+            out.mux(p)
+    for p in s.encode():
+        out.mux(p)
+    out.close()
+    return path
+
+
+def _no_stream(path):
+    """An mp4 whose writer got no frame: FFmpeg drops the empty video stream."""
+    out = av.open(str(path), "w")
+    s = out.add_stream("libx264", rate=30)
+    s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+    out.start_encoding()
+    out.close()
+    return path
+
+
+def test_bad_files_one_line_naming_the_file(tmp_path, clip):
+    (tmp_path / "text.mp4").write_text("not a video\n")
+    data = clip.read_bytes()
+    (tmp_path / "noindex.mp4").write_bytes(data[:len(data) // 2])   # cut before its index (at the end)
+    fast = _faststart(tmp_path / "fast.mp4").read_bytes()
+    (tmp_path / "cut.mp4").write_bytes(fast[:int(len(fast) * 0.8)])
+    _no_stream(tmp_path / "empty.mp4")
+    cases = {"text.mp4": "cannot read video (not a video, or cut off)",
+             "noindex.mp4": "cannot read video (not a video, or cut off)",
+             "cut.mp4": "cut off",
+             "empty.mp4": "no video stream (no frames)",
+             "missing.mp4": "no such video"}
+    for name, message in cases.items():
+        path = tmp_path / name
+        for read in (lambda p: list(iter_frames(p)), lambda p: sample_frames(p, 5)):
+            with pytest.raises(InputError) as e:
+                read(path)
+            text = str(e.value)
+            assert text.startswith(str(path)) and message in text and "\n" not in text, text
+    with pytest.raises(InputError, match="no frames to write"):
+        write_video(tmp_path / "none.mp4", [])
+    assert not (tmp_path / "none.mp4").exists()
+
+
+def test_is_video():
+    assert is_video("a/clip.MOV") and is_video("x.mkv") and not is_video("face.png")
+
+
+def test_missing_library_says_how_to_install(monkeypatch, clip):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.raises(InputError, match=r"video extra: pip install"):
+        probe(clip)
