@@ -145,3 +145,65 @@ def test_missing_library_says_how_to_install(monkeypatch, clip):
     monkeypatch.setitem(sys.modules, "av", None)
     with pytest.raises(InputError, match=r"video extra: pip install"):
         probe(clip)
+
+
+# --- morphable fit on videos -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def face_clip(tmp_path_factory, data_dir):
+    """A 12-frame 320 x 256 clip of image_0010 panning right 2 px a frame, frames 3 and 4 grey
+    (no face), and a clip with no face at all."""
+    from PIL import Image
+
+    d = tmp_path_factory.mktemp("faces")
+    with Image.open(data_dir / "images" / "image_0010.png") as im:
+        photo = np.asarray(im.convert("RGB").resize((320, 256)))
+    clip = [np.roll(photo, 2 * i, axis=1) for i in range(12)]
+    for i in (3, 4):
+        clip[i] = np.full_like(photo, 128)
+    write_video(d / "face.mp4", clip)
+    write_video(d / "grey.mp4", [np.full_like(photo, 128)] * 6)
+    Image.fromarray(photo).save(d / "face.png")
+    return d
+
+
+def _cli(args, cwd):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    return subprocess.run([sys.executable, "-m", "morphable.cli", *args], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, "PYTHONPATH": str(repo)}, timeout=300)
+
+
+def test_fit_samples_a_video_skips_faceless_frames_and_mixes_with_photos(face_clip):
+    import json
+
+    r = _cli(["fit", "face.mp4", "face.png", "--frames", "6", "--report", "fit.json",
+              "--overlay", "o.png", "-q"], face_clip)
+    assert r.returncode == 0, r.stderr
+    report = json.loads((face_clip / "fit.json").read_text())
+    # sample_indices(12, 6) = 0 2 4 7 9 11: frame 4 is grey
+    assert [f["image"] for f in report["frames"]] == [f"face.mp4#{i}" for i in (0, 2, 7, 9, 11)] + ["face.png"]
+    assert report["frames_skipped"] == [{"image": "face.mp4#4", "time_s": pytest.approx(4 / 30, abs=1e-3),
+                                         "reason": "no face found"}]
+    assert [f["frame"] for f in report["video_frames"]] == [0, 2, 7, 9, 11]
+    assert report["shared_identity"] and report["n_frames"] == 6
+    assert "face.mp4#4" in r.stdout and "skipped" in r.stdout
+    # the frames pan right by 2 px each: the fitted landmarks follow them
+    x = np.array([np.nanmean([p[0] for p in f["landmarks_68_px"] if p]) for f in report["frames"][:5]])
+    np.testing.assert_allclose(np.diff(x) / np.diff([0, 2, 7, 9, 11]), 2.0, atol=0.5)
+    assert sorted(p.name for p in face_clip.glob("o_*.png")) == [f"o_{i}.png" for i in range(6)]
+
+
+def test_fit_video_errors(face_clip):
+    before = sorted(p.name for p in face_clip.iterdir())
+    for args, message in [
+        (["fit", "grey.mp4", "--report", "x.json"], "grey.mp4: no face found in any of the 5 sampled frames"),
+        (["fit", "face.mp4", "--frames", "0", "--report", "x.json"], "--frames must be >= 1, got 0"),
+        (["fit", "face.mp4", "--landmarks", "face.pts"], "face.mp4: landmark files are for photos"),
+    ]:
+        r = _cli(args, face_clip)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
+    assert sorted(p.name for p in face_clip.iterdir()) == before

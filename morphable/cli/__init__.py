@@ -23,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         module = importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
         p = module.add_parser(sub)
+        add_verbosity_arguments(p, defaults=False)   # `morphable fit ... -q` as well as `morphable -q fit`
         p.set_defaults(_run=module.run)
     return parser
 
