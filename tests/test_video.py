@@ -207,3 +207,64 @@ def test_fit_video_errors(face_clip):
         r = _cli(args, face_clip)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
     assert sorted(p.name for p in face_clip.iterdir()) == before
+
+
+# --- morphable track ---------------------------------------------------------------------------
+def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(face_clip):
+    import json
+
+    r = _cli(["track", "face.mp4", "--out", "trk", "--overlay-video", "-q"], face_clip)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((face_clip / "trk" / "track.json").read_text())
+    assert summary["frames"] == 12 and summary["frames_lost"] == [3, 4] and summary["fps"] == pytest.approx(30)
+    assert len(summary["identity"]) == 63
+    assert "2 lost (frames 3-4)" in r.stdout
+    t = np.load(face_clip / "trk" / "track.npz")
+    assert t["landmarks_68_px"].shape == (12, 68, 2) and t["euler_deg"].shape == (12, 3)
+    assert t["detector_px"].shape[:2] == (12, 478) and t["expression"].shape == (12, 6)
+    np.testing.assert_array_equal(t["tracked"], ~np.isin(np.arange(12), [3, 4]))
+    assert np.isnan(t["landmarks_68_px"][[3, 4]]).all() and np.isfinite(t["euler_deg"][t["tracked"]]).all()
+    # the face detector: the first frame, the two lost ones, the first after them
+    np.testing.assert_array_equal(np.flatnonzero(t["detected"]), [0, 3, 4, 5])
+    # the face pans right 2 px a frame: so do the fitted points
+    ok = t["tracked"]
+    x = np.nanmean(t["landmarks_68_px"][ok, :, 0], 1)
+    slope = np.polyfit(np.flatnonzero(ok), x, 1)[0]
+    assert slope == pytest.approx(2.0, abs=0.4)
+    assert probe(face_clip / "trk" / "overlay.mp4").n_frames == 12
+
+
+def test_track_bad_inputs_write_nothing(face_clip):
+    (face_clip / "file.txt").write_text("x")
+    before = sorted(p.name for p in face_clip.iterdir())
+    for args, message in [
+        (["track", "grey.mp4", "--out", "t"], "grey.mp4: no face found in any of the 6 sampled frames"),
+        (["track", "face.mp4", "--out", "file.txt"], "file.txt: exists and is not a folder"),
+        (["track", "face.mp4", "--out", "nosuch/t"], "nosuch does not exist"),
+        (["track", "face.mp4", "--out", "t", "--smoothing-hz", "-1"], "--smoothing-hz must be >= 0"),
+    ]:
+        r = _cli(args, face_clip)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and message in r.stderr, r.stderr
+    assert sorted(p.name for p in face_clip.iterdir()) == before
+
+
+def test_temporal_prior_removes_jitter_and_keeps_the_motion():
+    from morphable.tracking import smooth_trajectories
+
+    fps, rng = 30.0, np.random.default_rng(0)
+    t = np.arange(300) / fps
+    truth = np.c_[20 * np.sin(2 * np.pi * 0.5 * t), 5 * np.sin(2 * np.pi * 1.5 * t)]   # head motion, deg
+    measured = truth + rng.normal(0, 1.0, truth.shape)                                  # detector jitter
+    tracked = np.ones(300, bool)
+    tracked[100:103] = False                                                              # a lost stretch
+    smooth = smooth_trajectories(measured, tracked, fps, cutoff_hz=4.0)
+    np.testing.assert_array_equal(smooth[100:103], measured[100:103])
+
+    def jitter(x):   # mean frame-to-frame acceleration
+        return np.abs(np.diff(x[tracked][:95], 2, axis=0)).mean()
+
+    assert jitter(smooth) < 0.25 * jitter(measured)
+    assert jitter(smooth) < 1.5 * jitter(truth) + 0.2
+    err = lambda x: np.sqrt(((x - truth)[tracked] ** 2).mean())   # noqa: E731
+    assert err(smooth) < 0.6 * err(measured)
+    np.testing.assert_array_equal(smooth_trajectories(measured, tracked, fps, cutoff_hz=0), measured)
