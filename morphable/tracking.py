@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -192,10 +193,10 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
         raise InputError(f"smoothing must be >= 0 Hz, got {smoothing_hz}")
     describe(landmark_detector, face_detector)     # a bad choice fails before any work
     info = probe(path)
-    if isinstance(model, str):
+    if isinstance(model, (str, Path)):
         from .io.registry import load_model
 
-        model = load_model(model)
+        model = load_model(str(model))
     res, _ = fit_files([path], model=model, landmark_detector=landmark_detector,
                        face_detector=face_detector, video_frames=identity_frames)
     identity = res.identity
@@ -244,7 +245,9 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
         rows["expression"].append(fit.expression[0])
         rows["detector"].append(np.asarray(pts, dtype=np.float32))
         rows["rmse"].append(float(fit.landmark_rmse_px[0]))
-        box = carried_box(fit.landmarks_68_px()[0])
+        # the fit's own projected points (not landmarks_68_px: its outline march costs more
+        # than the fit)
+        box = carried_box(fit.fitted_landmarks[0])
     tracked = np.array(rows["tracked"], dtype=bool)
     n = len(tracked)
     raw_euler, raw_expr = np.array(rows["euler"]).reshape(n, 3), np.array(rows["expression"]).reshape(n, E)
