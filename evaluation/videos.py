@@ -31,6 +31,7 @@ from morphable.ibug68 import JAW
 from morphable.logs import import_open3d
 from morphable.metrics import Similarity, align_landmarks
 from morphable.raster.visibility import scene as raycasting_scene
+from morphable.video import sample_indices
 
 __all__ = ["Condition", "CONDITIONS", "Video", "frontal_frame", "trajectory", "sample_frames",
            "project_landmarks", "synthetic_video", "render_frames", "detect_landmarks"]
@@ -139,14 +140,13 @@ def trajectory(condition: Condition, n_frames: int = 30, rng=None) -> np.ndarray
 
 
 def sample_frames(n_frames: int, k: int) -> np.ndarray:
-    """``k`` frame indices spread uniformly over ``n_frames`` (first and last included).
+    """``k`` frame indices spread uniformly over ``n_frames`` (first and last included):
+    :func:`morphable.video.sample_indices`.
 
     >>> sample_frames(30, 5)
     array([ 0,  7, 14, 22, 29])
     """
-    if not 1 <= k <= n_frames:
-        raise InputError(f"cannot sample {k} frames from a {n_frames}-frame video")
-    return np.round(np.linspace(0, n_frames - 1, k)).astype(np.int64)
+    return sample_indices(n_frames, k)
 
 
 def _visible(scene, camera: Camera, points, tol_mm: float = 4.0) -> np.ndarray:

@@ -73,12 +73,21 @@ def configure(verbosity: int = 0, stream=None) -> None:
     logging.captureWarnings(True)
 
 
-def add_verbosity_arguments(parser) -> None:
+def add_verbosity_arguments(parser, defaults: bool = True) -> None:
     """``-q/--quiet`` and ``-v/--verbose`` (repeatable) on an argparse parser: the options
-    every command of the project takes; :func:`verbosity` reads them back."""
+    every command of the project takes; :func:`verbosity` reads them back.
+
+    ``defaults=False`` is for the subcommands of a parser that has them already
+    (``morphable fit ... -q``): unset there, they leave the main parser's values alone (a
+    subparser's defaults would overwrite ``morphable -q fit``).
+    """
+    import argparse
+
     parser.add_argument("-q", "--quiet", action="store_true",
+                        default=False if defaults else argparse.SUPPRESS,
                         help="no progress bars, warnings only")
-    parser.add_argument("-v", "--verbose", action="count", default=0,
+    parser.add_argument("-v", "--verbose", action="count",
+                        default=0 if defaults else argparse.SUPPRESS,
                         help="also the libraries' messages (-v warnings, -vv everything)")
 
 

@@ -115,6 +115,37 @@ def make_fixtures(d: Path) -> None:
     (d / "fit1.json").write_text(json.dumps({"model": "sfm", "frames": [{"image": "face.png"}]}))
     (d / "ictdir").mkdir()
     (d / "ictdir" / "generic_neutral_mesh.obj").write_text("")
+    make_video_fixtures(d)
+
+
+def make_video_fixtures(d: Path) -> None:
+    """``text.mp4``, ``cut.mp4``, ``noframes.mp4``, ``grey.mp4`` (docs/bad_input.md)."""
+    import av
+
+    from morphable.video import write_video
+
+    (d / "text.mp4").write_text("not a video\n")
+    # the index first (as cameras write it), so that the cut file still opens and counts 60 frames
+    out = av.open(str(d / "full.mp4"), "w", options={"movflags": "faststart"})
+    s = out.add_stream("libx264", rate=30)
+    s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        for p in s.encode(av.VideoFrame.from_ndarray(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8),
+                                                     format="rgb24")):
+            out.mux(p)
+    for p in s.encode():
+        out.mux(p)
+    out.close()
+    full = (d / "full.mp4").read_bytes()
+    (d / "cut.mp4").write_bytes(full[:len(full) // 2])
+    (d / "full.mp4").unlink()
+    out = av.open(str(d / "noframes.mp4"), "w")   # a writer that got no frame: no video stream
+    s = out.add_stream("libx264", rate=30)
+    s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+    out.start_encoding()
+    out.close()
+    write_video(d / "grey.mp4", [np.full((240, 320, 3), 128, np.uint8)] * 10)
 
 
 @pytest.fixture(scope="module")

@@ -263,7 +263,7 @@ def test_import_loads_no_detector():
     import subprocess
     import sys
 
-    code = ("import sys, morphable, morphable.detection, morphable.fitting.files, morphable.cli; "
-            "print([m for m in ('mediapipe', 'cv2', 'dlib', 'matplotlib') if m in sys.modules])")
+    code = ("import sys, morphable, morphable.detection, morphable.fitting.files, morphable.cli, morphable.video; "
+            "print([m for m in ('mediapipe', 'cv2', 'dlib', 'matplotlib', 'av') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

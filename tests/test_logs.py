@@ -76,3 +76,14 @@ def test_fresh_matplotlib_cache_is_silent(tmp_path, data_dir):
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "mpl").is_dir()            # matplotlib did build its cache here
     assert run.stderr == ""
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["info"], 0), (["-q", "info"], -1), (["info", "-q"], -1), (["info", "--quiet"], -1),
+    (["-v", "info"], 1), (["info", "-vv"], 2), (["fit", "a.png", "-q"], -1),
+    (["fit", "a.png", "--frames", "3", "-v"], 1),
+])
+def test_verbosity_before_or_after_the_command(argv, expected):
+    from morphable.cli import build_parser
+
+    assert logs.verbosity(build_parser().parse_args(argv)) == expected

@@ -108,7 +108,7 @@ def test_expression_index(sfm):
 
 def test_import_is_light():
     code = ("import sys, morphable; morphable.load_model('sfm'); "
-            "heavy = [m for m in ('torch', 'open3d', 'pyvista', 'trimesh', 'igl', 'scipy', 'mediapipe', 'cv2', 'dlib') "
+            "heavy = [m for m in ('torch', 'open3d', 'pyvista', 'trimesh', 'igl', 'scipy', 'mediapipe', 'cv2', 'dlib', 'av') "
             "if m in sys.modules]; print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

@@ -12,7 +12,8 @@ import sys
 from ..errors import MorphableError
 from ..logs import add_verbosity_arguments, configure, verbosity
 
-COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "texture", "edit"]
+COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "texture",
+            "track", "edit"]
 """Module names under ``morphable.cli``; the order is the order of ``morphable --help``."""
 
 
@@ -23,6 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         module = importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
         p = module.add_parser(sub)
+        add_verbosity_arguments(p, defaults=False)   # `morphable fit ... -q` as well as `morphable -q fit`
         p.set_defaults(_run=module.run)
     return parser
 

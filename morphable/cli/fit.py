@@ -1,5 +1,9 @@
 """``morphable fit``: fit the model to the landmarks of one or more images of a person.
 
+Videos (``.mp4``, ``.mov``, ... :data:`morphable.video.VIDEO_SUFFIXES`) give ``--frames``
+frames each, spread uniformly (default 5, the Florence protocol); frames without a face are
+skipped and reported, and every frame, photo or video, shares one identity.
+
 Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson`` 68 points, or 478
 face-mesh points in ``.npy``/``.json``, one file per image) or are detected
 (``--landmark-detector``, ``--face-detector``; then fitted with a detector's error,
@@ -18,7 +22,11 @@ from .common import (add_fitting_arguments, add_loss_weight_argument, add_model_
 
 def add_parser(sub):
     p = sub.add_parser("fit", help="fit identity, expression and pose to 2D landmarks of images")
-    p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one person")
+    p.add_argument("images", nargs="+", metavar="IMAGE",
+                   help="images or videos of one person (a video gives --frames frames)")
+    p.add_argument("--frames", type=int, default=5, metavar="N",
+                   help="frames sampled uniformly from each video (default 5, the Florence "
+                        "protocol; all of a shorter video)")
     p.add_argument("--landmarks", nargs="+", metavar="PTS",
                    help="iBUG .pts/.ljson (68) or face-mesh .npy/.json (478) files, one per image "
                         "(default: detect, see --landmark-detector)")
@@ -51,7 +59,7 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..fitting.files import fit_files, write_fit
+    from ..fitting.files import expand_videos, fit_files, write_fit
     from ..refinement import parse_loss_weights
 
     if args.overlay:
@@ -80,6 +88,8 @@ def run(args):
         raise InputError(f"--landmarks: {len(args.landmarks)} files for {len(args.images)} images")
     if args.n_iterations < 0:
         raise InputError(f"--n-iterations must be >= 0, got {args.n_iterations}")
+    if args.frames < 1:
+        raise InputError(f"--frames must be >= 1, got {args.frames}")
     if args.steps < 0:
         raise InputError(f"--steps must be >= 0, got {args.steps}")
     if args.refine_render and not args.refine:
@@ -87,31 +97,37 @@ def run(args):
     if args.loss_weight and not args.refine:
         raise InputError("--loss-weight needs --refine")
     weights = parse_loss_weights(args.loss_weight, "--loss-weight")
-    images = [Path(p) for p in args.images]
+    # videos are opened here, not in fit_files, so that overlays, textures and refinement get
+    # the frames
+    images = [Path(p) for p in args.images] if args.landmarks else expand_videos(args.images, args.frames)
     res, report = fit_files(images, args.landmarks, model=model, camera=args.camera,
                             focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
                             shared_identity=not args.independent,
                             landmark_detector=args.landmark_detector, face_detector=args.face_detector,
-                            landmark_std_px=args.landmark_std)
+                            landmark_std_px=args.landmark_std, video_frames=args.frames)
+    images = _fitted(images, report)
+    pictures = [getattr(p, "image", p) for p in images]   # video frames: their pixels
     if args.refine:
         res, report = _refine(args, res, report, images, weights)
     if args.overlay:  # first: drawing is the likeliest step to fail
         from ..overlay import write_overlays
 
         style = None if args.overlay_style == "none" else args.overlay_style
-        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, images, mesh=style,
+        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, pictures, mesh=style,
                                                                    crop=args.overlay_crop)]
     texture = None
     if args.out_texture:
         from ..texture import extract_texture
 
-        texture = extract_texture(res, images, size=args.texture_size)
+        texture = extract_texture(res, pictures, size=args.texture_size)
         report["texture"] = {"path": str(args.out_texture), "size": args.texture_size,
                              "observed": float(texture.observed[texture.layout].mean()),
                              "mirrored": float(texture.mirrored[texture.layout].mean()),
                              "runtime_ms": texture.runtime_ms}
     write_fit(res, report, mesh=args.out_mesh, report_path=args.report, texture=texture,
               texture_path=args.out_texture)
+    for f in report.get("frames_skipped", []):
+        print(f"{f['image']} ({f['time_s']:.3f} s): skipped, {f['reason']}")
     for f in report["frames"]:
         print(f"{f['image']}: landmark RMSE {f['landmark_rmse_px']:.2f} px, yaw {f['yaw_deg']:.1f}, "
               f"pitch {f['pitch_deg']:.1f}, roll {f['roll_deg']:.1f} deg")
@@ -120,6 +136,13 @@ def run(args):
           + (f" {args.report}" if args.report else "")
           + (f" {args.out_texture}" if args.out_texture else ""))
     return 0
+
+
+def _fitted(items, report) -> list:
+    """The photos and video frames of ``items`` that the fit kept (video frames without a face
+    are not), in the report's order."""
+    by_name = {getattr(item, "label", str(item)): item for item in items}
+    return [by_name[f["image"]] for f in report["frames"]]
 
 
 def _refine(args, res, report, images, weights):
@@ -131,7 +154,8 @@ def _refine(args, res, report, images, weights):
     options = renderer_options(args.inverter)
     runs = []
     for i, path in enumerate(images):
-        res, rep, state = refine(read_image(path), res, args.refine, steps=args.steps, frame=i,
+        image = path.image if hasattr(path, "image") else read_image(path)
+        res, rep, state = refine(image, res, args.refine, steps=args.steps, frame=i,
                                  weights=weights, renderer_options=options, return_state=True)
         runs.append(rep)
         if i == 0 and args.refine_render:
@@ -140,10 +164,10 @@ def _refine(args, res, report, images, weights):
             from ..raster import save_image_png
 
             save_image_png(args.refine_render, np.concatenate([state.target, state.rendered], 1))
-        print(f"{path}: refine {args.refine}: photometric loss {rep['photometric_loss'][0]:.4f} -> "
+        print(f"{getattr(path, 'label', path)}: refine {args.refine}: photometric loss {rep['photometric_loss'][0]:.4f} -> "
               f"{rep['photometric_loss'][-1]:.4f} in {rep['runtime_s']:.1f} s")
-    landmark_sources = report["landmarks"]
-    report = res.to_dict(images=[str(p) for p in images])
-    report["landmarks"] = landmark_sources
+    kept = {k: report[k] for k in ("landmarks", "video_frames", "frames_skipped") if k in report}
+    report = res.to_dict(images=[getattr(p, "label", str(p)) for p in images])
+    report.update(kept)
     report["refine"] = runs
     return res, report

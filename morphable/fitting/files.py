@@ -27,7 +27,7 @@ import numpy as np
 from ..detection.images import image_size
 from ..errors import InputError
 
-__all__ = ["read_landmark_file", "one_landmark_set", "fit_files", "write_fit", "fit_item",
+__all__ = ["read_landmark_file", "one_landmark_set", "expand_videos", "fit_files", "write_fit", "fit_item",
            "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
 
 MAX_DETECT_MEGAPIXELS = 40.0
@@ -111,14 +111,36 @@ def _read_facemesh_points(path: Path) -> np.ndarray:
         raise InputError(f"{path}: cannot read landmarks ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
 
 
-def _detect(path, size, landmark_detector: str, face_detector: str) -> np.ndarray:
+def _detect(image, name, size, landmark_detector: str, face_detector: str) -> np.ndarray:
+    """Detected landmarks of a photo's path or a video frame's pixels; ``name`` for messages."""
     from ..detection import detect_landmarks
 
     mp = size[0] * size[1] / 1e6
     if mp > MAX_DETECT_MEGAPIXELS:
-        raise InputError(f"{path}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
+        raise InputError(f"{name}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
                          f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
-    return detect_landmarks(path, landmark_detector=landmark_detector, face_detector=face_detector)
+    return detect_landmarks(image, landmark_detector=landmark_detector, face_detector=face_detector)
+
+
+def expand_videos(images, n_frames: int = 5) -> list:
+    """Photos and videos -> photos and video frames: each video (:func:`morphable.video.is_video`)
+    replaced by ``n_frames`` of its frames spread uniformly (:func:`morphable.video.sample_frames`,
+    the Florence protocol's 5 by default), as :class:`~morphable.video.VideoFrame` objects;
+    photos (paths) and frames already decoded stay as they are."""
+    from ..video import is_video, sample_frames
+
+    out = []
+    for item in images:
+        if is_video(item):
+            out.extend(sample_frames(item, n_frames))
+        else:
+            out.append(item if _is_frame(item) else Path(item))
+    return out
+
+
+def _is_frame(item) -> bool:
+    # by attribute rather than isinstance: morphable.video stays unimported for photos
+    return hasattr(item, "image") and hasattr(item, "label")
 
 
 def one_landmark_set(points: list) -> np.ndarray:
@@ -134,33 +156,42 @@ def one_landmark_set(points: list) -> np.ndarray:
 
 def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", focal_px=None,
               n_iterations: int = 4, robust=None, shared_identity: bool = True,
-              landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0):
-    """Fit a model to one or more images of a person, from landmark files or detection.
+              landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0,
+              video_frames: int = 5):
+    """Fit a model to one or more images or videos of a person, from landmark files or detection.
 
     Parameters
     ----------
-    images : list of paths
-    landmarks : list of paths or None (one per image; a None entry is detected); see
-        :func:`read_landmark_file`
+    images : list of photo paths, video paths and :class:`~morphable.video.VideoFrame` objects;
+        each video gives ``video_frames`` frames spread uniformly (:func:`expand_videos`)
+    landmarks : list of paths or None (one per photo; a None entry is detected); see
+        :func:`read_landmark_file`. Video frames are always detected (their entry must be None).
     model : MorphableModel or name/path for ``load_model``
     camera, focal_px, n_iterations, landmark_std_px : see :func:`morphable.fitting.fit_landmarks`
     robust : None or "huber" (see :func:`morphable.fitting.fit_landmarks`)
     shared_identity : bool, one identity for all images (False: independent fits)
     landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
+    video_frames : int >= 1, frames sampled from each video (all of a shorter one)
 
     Frames whose landmarks are detected are fitted with ``model_std_mm``
     :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
-    face-shaped), the others with the fitter's default.
+    face-shaped), the others with the fitter's default. A video frame without a face is
+    skipped (listed in the report's ``frames_skipped``); a photo without one, or a video
+    without a face in any sampled frame, is an error.
 
     Returns
     -------
-    (FitResult, report dict) — the report is ``FitResult.to_dict`` plus the landmark sources.
+    (FitResult, report dict) — the report is ``FitResult.to_dict`` (frames named by path, video
+    frames as ``clip.mp4#INDEX``) plus the landmark sources; with videos also
+    ``video_frames`` (each fitted frame's video, index and time in seconds) and
+    ``frames_skipped``.
     """
     from ..detection import describe
+    from ..errors import FitError
     from . import fit_landmarks
     from .noise import frame_model_std
 
-    images = [Path(p) for p in images]
+    images = list(images)
     if not images:
         raise InputError("no images given")
     landmarks = list(landmarks) if landmarks else [None] * len(images)
@@ -168,22 +199,60 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         raise InputError(f"landmarks: {len(landmarks)} files for {len(images)} images")
     if int(n_iterations) < 0:
         raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
-    sizes = [image_size(p) for p in images]
+    if int(video_frames) < 1:
+        raise InputError(f"video frames must be >= 1, got {video_frames}")
     source = describe(landmark_detector, face_detector)  # a bad choice fails before any work
-    lms = one_landmark_set([read_landmark_file(lm, s) if lm else _detect(p, s, landmark_detector, face_detector)
-                             for p, lm, s in zip(images, landmarks, sizes)])
+    items, files = [], []
+    for item, lm in zip(images, landmarks):
+        expanded = expand_videos([item], video_frames)
+        if lm and (len(expanded) != 1 or _is_frame(expanded[0])):
+            raise InputError(f"{item}: landmark files are for photos; a video's frames are detected")
+        items += expanded
+        files += [lm] * len(expanded)
+    sizes = [item.size if _is_frame(item) else image_size(item) for item in items]
+    points, kept, skipped = [], [], []
+    for item, lm, size in zip(items, files, sizes):
+        if lm:
+            points.append(read_landmark_file(lm, size))
+        elif _is_frame(item):
+            try:
+                points.append(_detect(item.image, item.label, size, landmark_detector, face_detector))
+            except FitError:
+                # a video's frame without a face (turned away, occluded) is skipped, not fatal
+                skipped.append({"image": item.label, "time_s": round(item.time_s, 4),
+                                "reason": "no face found"})
+                continue
+        else:
+            points.append(_detect(item, item, size, landmark_detector, face_detector))
+        kept.append((item, lm, size))
+    _check_every_video_kept(items, kept)
+    lms = one_landmark_set(points)
     if isinstance(model, (str, Path)):
         from ..io.registry import load_model
 
         model = load_model(str(model))
-    model_std = frame_model_std([not lm for lm in landmarks])
-    res = fit_landmarks(model, lms, np.array(sizes, dtype=np.float64), camera=camera,
+    model_std = frame_model_std([not lm for _, lm, _ in kept])
+    res = fit_landmarks(model, lms, np.array([s for _, _, s in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
                         landmark_std_px=landmark_std_px, model_std_mm=model_std)
-    report = res.to_dict(images=[str(p) for p in images])
-    report["landmarks"] = [str(lm) if lm else source for lm in landmarks]
+    report = res.to_dict(images=[item.label if _is_frame(item) else str(item) for item, _, _ in kept])
+    report["landmarks"] = [str(lm) if lm else source for _, lm, _ in kept]
+    if any(_is_frame(item) for item in items):
+        report["video_frames"] = [{"image": item.label, "video": item.source, "frame": item.index,
+                                   "time_s": round(item.time_s, 4)}
+                                  for item, _, _ in kept if _is_frame(item)]
+        report["frames_skipped"] = skipped
     return res, report
+
+
+def _check_every_video_kept(items, kept) -> None:
+    """InputError naming a video none of whose sampled frames showed a face."""
+    sources = {item.source for item, _, _ in kept if _is_frame(item)}
+    for video in dict.fromkeys(item.source for item in items if _is_frame(item)):
+        if video not in sources:
+            n = sum(1 for item in items if _is_frame(item) and item.source == video)
+            raise InputError(f"{video}: no face found in any of the {n} sampled frames")
 
 
 def write_fit(result, report, mesh=None, report_path=None, texture=None,

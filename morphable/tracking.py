@@ -1,0 +1,282 @@
+"""Tracking a face through a video: one identity, a pose and an expression per frame.
+
+:func:`track_video` runs these steps, each a function usable alone:
+
+1. the identity: one shared-identity fit (:func:`morphable.fitting.files.fit_files`) of
+   ``identity_frames`` frames spread uniformly over the video (frames without a face skipped);
+2. every frame, streamed (:func:`morphable.video.iter_frames`): landmarks detected in the box
+   of the previous frame's fit (:func:`carried_box`), the face detector run only when there is
+   no box or the face is not found in it; then pose and expression fitted with the identity
+   held (:func:`fixed_identity_model`). A frame without a face is *lost* (NaN rows), never an
+   error;
+3. the temporal prior (:func:`smooth_trajectories`): each run of tracked frames is the most
+   probable trajectory under a Gaussian prior on the frame-to-frame acceleration of the pose
+   angles, translation, log scale and expression, given the per-frame fits as measurements.
+   Its strength is a cut-off frequency in Hz (``smoothing_hz``): motion slower than it passes,
+   faster detector jitter is removed. 0 turns it off.
+
+Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FitError, InputError
+
+__all__ = ["TrackResult", "track_video", "fixed_identity_model", "carried_box", "smooth_trajectories",
+           "DEFAULT_SMOOTHING_HZ", "LOST_RMSE_FRACTION"]
+
+DEFAULT_SMOOTHING_HZ = 4.0
+"""Cut-off of the temporal prior: head motion and speech are mostly slower; a detector's
+frame-to-frame jitter is white, most of its power above."""
+
+LOST_RMSE_FRACTION = 0.08
+"""A frame whose fit misses its landmarks by more than this fraction of the face's size (RMS,
+px over the landmark box's diagonal) has lost the face: a landmark detector run in a box
+without a face still returns points."""
+
+
+@dataclasses.dataclass
+class TrackResult:
+    """Per-frame tracking of one video; F frames, E expression modes, L detector points.
+    Lost frames hold NaN.
+
+    Attributes
+    ----------
+    identity : (K,) identity coefficients (std units), shared by all frames
+    time_s : (F,) presentation time of each frame, s
+    tracked : (F,) bool, a face was found and fitted
+    detected : (F,) bool, the face detector ran (no box carried, or the face lost in it)
+    euler_deg : (F, 3) yaw, pitch, roll, degrees (after the temporal prior)
+    translation : (F, 3) mm, camera frame
+    scale : (F,) px/mm (affine camera)
+    expression : (F, E) coefficients (after the temporal prior)
+    landmarks_68_px : (F, 68, 2) the fitted face's iBUG-68 points projected, px (NaN where the
+        model has none), as in fit reports
+    detector_px : (F, L, 2) float32 the detector's points, px
+    detector_std_px : (F,) the detector's σ, px, NaN where it gives none (the face mesh and
+        dlib give none)
+    raw_euler_deg, raw_expression : the per-frame fits before the temporal prior
+    landmark_rmse_px : (F,) RMS distance of the fitted to the detected points, px
+    fps : float, average frame rate of the video
+    image_size : (W, H) px
+    fit : FitResult of the tracked frames after the prior (frame i of it is video frame
+        ``np.flatnonzero(tracked)[i]``; no landmarks), or None when no frame was tracked:
+        meshes (``fit.vertices(i)``) and overlays (:func:`morphable.overlay.draw_overlay`)
+    """
+
+    identity: np.ndarray
+    time_s: np.ndarray
+    tracked: np.ndarray
+    detected: np.ndarray
+    euler_deg: np.ndarray
+    translation: np.ndarray
+    scale: np.ndarray
+    expression: np.ndarray
+    landmarks_68_px: np.ndarray
+    detector_px: np.ndarray
+    detector_std_px: np.ndarray
+    raw_euler_deg: np.ndarray
+    raw_expression: np.ndarray
+    landmark_rmse_px: np.ndarray
+    fps: float
+    image_size: tuple
+    fit: object = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.time_s)
+
+
+def fixed_identity_model(model, identity):
+    """The model with ``identity`` (K,) baked into its mean: fitted with ``n_identity=0`` it
+    fits pose and expression only (its identity modes are kept, unused)."""
+    return dataclasses.replace(model, mean=model.vertices(identity))
+
+
+def carried_box(points, margin: float = 0.1):
+    """The face box of the previous frame's landmarks (L, 2) px, widened by ``margin`` of its
+    size each side -> (left, top, right, bottom) px, or None when too few points are finite."""
+    p = np.asarray(points, dtype=np.float64)
+    p = p[np.isfinite(p).all(1)]
+    if len(p) < 3:
+        return None
+    lo, hi = p.min(0), p.max(0)
+    pad = margin * (hi - lo)
+    return tuple(float(v) for v in (*(lo - pad), *(hi + pad)))
+
+
+def smooth_trajectories(values, tracked, fps: float, cutoff_hz: float = DEFAULT_SMOOTHING_HZ):
+    """The temporal prior: per run of consecutive tracked frames, the trajectory x minimising
+    ``|x - values|^2 + lam |D2 x|^2`` (D2 the second difference: a Gaussian prior on the
+    acceleration). Away from a run's ends its frequency response is 1 / (1 + lam (2 - 2 cos w)^2)
+    (w in radians per frame), which ``lam`` sets to 1/2 at ``cutoff_hz``.
+
+    Parameters
+    ----------
+    values : (F, D) per-frame measurements (any units; each column smoothed alike)
+    tracked : (F,) bool; untracked frames break runs and stay as they are
+    fps : frames per second
+    cutoff_hz : >= 0; 0 or a cut-off at or above the Nyquist frequency returns ``values``
+
+    Returns (F, D) float64.
+
+    >>> x = np.r_[np.zeros(10), np.ones(10)][:, None]
+    >>> y = smooth_trajectories(x, np.ones(20, bool), fps=30, cutoff_hz=3)
+    >>> bool(abs(y[9, 0] - 0.5) < 0.2 and abs(y[0, 0]) < 0.05)
+    True
+    """
+    from scipy.linalg import solveh_banded
+
+    values = np.asarray(values, dtype=np.float64)
+    out = values.copy()
+    if not cutoff_hz or cutoff_hz < 0 or not fps or cutoff_hz >= fps / 2:
+        return out
+    lam = 1.0 / (2.0 - 2.0 * math.cos(2 * math.pi * cutoff_hz / fps)) ** 2
+    tracked = np.asarray(tracked, dtype=bool)
+    edges = np.flatnonzero(np.diff(np.r_[0, tracked.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        n = b - a
+        if n < 3:
+            continue
+        out[a:b] = solveh_banded(_prior_bands(n, lam), values[a:b])
+    return out
+
+
+def _prior_bands(n: int, lam: float) -> np.ndarray:
+    """I + lam D2'D2 (n x n, D2 the (n-2, n) second difference) as the upper bands
+    ``solveh_banded`` takes: ``bands[2 - k, j] = A[j - k, j]``."""
+    c = (1.0, -2.0, 1.0)
+    bands = np.zeros((3, n))
+    rows = np.arange(n - 2)
+    for r in range(3):
+        for s in range(r, 3):
+            # row i of D2 holds c at columns i, i+1, i+2: c[r] c[s] lands on (i+r, i+s)
+            bands[2 - (s - r), rows + s] += c[r] * c[s]
+    bands *= lam
+    bands[2] += 1.0
+    return bands
+
+
+def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detector: str = "auto",
+                face_detector: str = "auto", smoothing_hz: float = DEFAULT_SMOOTHING_HZ,
+                progress: bool = False) -> TrackResult:
+    """Track the face of a video (see the module docstring for the steps).
+
+    Parameters
+    ----------
+    path : a video file (:mod:`morphable.video`)
+    model : MorphableModel or name/path
+    identity_frames : int >= 1, frames spread uniformly for the identity fit
+    landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
+    smoothing_hz : cut-off of the temporal prior, Hz (0: off)
+    progress : a progress bar on stderr (tqdm)
+
+    Returns a :class:`TrackResult`. InputError for a bad file or a video in which no sampled
+    frame shows a face; frames in which the face is lost are reported, never an error.
+    """
+    from .camera import Camera, euler_to_matrix
+    from .detection import detect_landmarks, describe
+    from .fitting import fit_landmarks
+    from .fitting.files import fit_files
+    from .fitting.noise import DETECTED_MODEL_STD_MM
+    from .fitting.result import FitResult
+    from .video import iter_frames, probe
+
+    if int(identity_frames) < 1:
+        raise InputError(f"identity frames must be >= 1, got {identity_frames}")
+    if not smoothing_hz >= 0:
+        raise InputError(f"smoothing must be >= 0 Hz, got {smoothing_hz}")
+    describe(landmark_detector, face_detector)     # a bad choice fails before any work
+    info = probe(path)
+    if isinstance(model, (str, Path)):
+        from .io.registry import load_model
+
+        model = load_model(str(model))
+    res, _ = fit_files([path], model=model, landmark_detector=landmark_detector,
+                       face_detector=face_detector, video_frames=identity_frames)
+    identity = res.identity
+    fixed = fixed_identity_model(model, identity)
+    F, E = info.n_frames, model.n_expression
+    rows = {"time_s": [], "tracked": [], "detected": [], "euler": [], "translation": [], "scale": [],
+            "expression": [], "detector": [], "rmse": []}
+    box = None
+    frames = iter_frames(path)
+    if progress:
+        from tqdm import tqdm
+
+        frames = tqdm(frames, total=F, unit="frame", desc=str(path), leave=False)
+    n_points = None
+    for frame in frames:
+        pts, detected, fit = None, False, None
+        for use_box in ((True, False) if box is not None else (False,)):
+            try:
+                pts = detect_landmarks(frame.image, landmark_detector=landmark_detector,
+                                       face_detector=face_detector, box=box if use_box else None)
+            except FitError:
+                pts = None
+            detected = detected or not use_box
+            if pts is None:
+                continue
+            fit = fit_landmarks(fixed, pts, frame.size, n_identity=0, model_std_mm=DETECTED_MODEL_STD_MM)
+            size = np.linalg.norm(np.nanmax(pts, 0) - np.nanmin(pts, 0))
+            if fit.landmark_rmse_px[0] <= LOST_RMSE_FRACTION * size:
+                break
+            pts, fit = None, None
+        n_points = n_points or (len(pts) if pts is not None else None)
+        rows["time_s"].append(frame.time_s)
+        rows["detected"].append(detected)
+        rows["tracked"].append(fit is not None)
+        if fit is None:
+            box = None
+            for k, v in (("euler", np.full(3, np.nan)), ("translation", np.full(3, np.nan)),
+                         ("scale", np.nan), ("expression", np.full(E, np.nan)), ("detector", None),
+                         ("rmse", np.nan)):
+                rows[k].append(v)
+            continue
+        cam = fit.cameras[0]
+        rows["euler"].append(cam.euler_deg)
+        rows["translation"].append(cam.translation)
+        rows["scale"].append(cam.scale)
+        rows["expression"].append(fit.expression[0])
+        rows["detector"].append(np.asarray(pts, dtype=np.float32))
+        rows["rmse"].append(float(fit.landmark_rmse_px[0]))
+        # the fit's own projected points (not landmarks_68_px: its outline march costs more
+        # than the fit)
+        box = carried_box(fit.fitted_landmarks[0])
+    tracked = np.array(rows["tracked"], dtype=bool)
+    n = len(tracked)
+    raw_euler, raw_expr = np.array(rows["euler"]).reshape(n, 3), np.array(rows["expression"]).reshape(n, E)
+    translation, scale = np.array(rows["translation"]).reshape(n, 3), np.array(rows["scale"], dtype=np.float64)
+    # the prior on angles, translation, log scale and expression; yaw near +-180 is not a face
+    stacked = np.c_[raw_euler, translation, np.log(scale), raw_expr]
+    smooth = smooth_trajectories(stacked, tracked, info.fps, smoothing_hz)
+    euler, translation, scale, expression = smooth[:, :3], smooth[:, 3:6], np.exp(smooth[:, 6]), smooth[:, 7:]
+    cams = [Camera(kind="affine", rotation=euler_to_matrix(*euler[i]), translation=translation[i],
+                   scale=scale[i], image_size=(info.width, info.height)) for i in np.flatnonzero(tracked)]
+    lm68 = np.full((n, 68, 2), np.nan)
+    projected = None
+    if cams:
+        k = len(cams)
+        projected = FitResult(model=fixed, identity=np.zeros(0), frame_identity=np.zeros((k, 0)),
+                              expression=expression[tracked], cameras=cams,
+                              landmark_rmse_px=np.zeros(k), landmarks=np.zeros((k, 0, 2)),
+                              fitted_landmarks=np.zeros((k, 0, 2)),
+                              landmark_vertices=np.zeros((k, 0), dtype=np.int64))
+        lm68[tracked] = projected.landmarks_68_px()
+    L = n_points or 68
+    detector = np.full((n, L, 2), np.nan, dtype=np.float32)
+    for i, p in enumerate(rows["detector"]):
+        if p is not None and len(p) == L:
+            detector[i] = p
+    return TrackResult(identity=identity, time_s=np.array(rows["time_s"]), tracked=tracked,
+                       detected=np.array(rows["detected"], dtype=bool), euler_deg=euler,
+                       translation=translation, scale=scale, expression=expression,
+                       landmarks_68_px=lm68, detector_px=detector,
+                       detector_std_px=np.full(n, np.nan), raw_euler_deg=raw_euler,
+                       raw_expression=raw_expr, landmark_rmse_px=np.array(rows["rmse"], dtype=np.float64),
+                       fps=info.fps, image_size=(info.width, info.height), fit=projected)
