@@ -175,7 +175,7 @@ def _view_samples(vertices, triangles, normals, camera, photo, samples, min_faci
     Visibility over the UV grid): ``cos(normal, view)`` where the point faces the camera by at
     least ``min_facing``, projects inside the photo and nothing lies in front of it, else 0."""
     from .raster import interpolate, sample_texture
-    from .raster.visibility import cast, scene
+    from .raster.visibility import points_in_view
 
     p = interpolate(samples, vertices, foreground=True)
     n = interpolate(samples, normals, foreground=True)
@@ -189,15 +189,7 @@ def _view_samples(vertices, triangles, normals, camera, photo, samples, min_faci
               & (xy[:, 1] > -0.5) & (xy[:, 1] < H - 0.5))
     k = np.flatnonzero(ok)
     # a ray from just off the surface towards the camera: any hit before the camera hides it
-    eps = 1e-3 * float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
-    origins = p[k] + eps * (d[k] + n[k])
-    t_hit, _, _ = cast(scene(vertices, triangles),
-                       np.concatenate([origins, d[k]], 1).astype(np.float32))
-    if camera.kind == "affine":
-        hidden = np.isfinite(t_hit)
-    else:
-        hidden = t_hit < np.linalg.norm(camera.centre - origins, axis=1)
-    ok[k[hidden]] = False
+    ok[k] = points_in_view(vertices, triangles, camera, p[k], n[k])
     weight = np.where(ok, cos, 0.0)
     k = np.flatnonzero(ok)
     colour = np.zeros((len(p), 3))

@@ -81,6 +81,7 @@ class SyntheticFaces:
         (identity ids index the pool; albedo is tied to the identity)
     supersample : antialiasing samples per pixel along each axis
     seed : seed of the identity pool
+    expression_active : blendshape models: how many random blendshapes a face may use
 
     Examples
     --------
@@ -91,12 +92,14 @@ class SyntheticFaces:
     """
 
     def __init__(self, model="sfm", resolution=64, yaw_max=45.0, pitch_max=20.0, roll_max=10.0,
-                 identity_std=1.0, expression_max=0.8, n_identities=None, supersample=2, seed=0):
+                 identity_std=1.0, expression_max=0.8, n_identities=None, supersample=2, seed=0,
+                 expression_active=2):
         self.model = _model(model) if isinstance(model, str) else model
         self.resolution = int(resolution)
         self.pose_max = np.array([yaw_max, pitch_max, roll_max], dtype=np.float64)
         self.identity_std, self.expression_max = float(identity_std), float(expression_max)
         self.supersample = int(supersample)
+        self.expression_active = int(expression_active)
         self.n_identities = n_identities
         if n_identities is not None:
             pool = np.random.default_rng(seed)
@@ -150,13 +153,14 @@ class SyntheticFaces:
         return {"identity": alpha, "albedo": np.clip(albedo, 0.02, 1.0), "tone": tone}
 
     def draw_expression(self, rng) -> np.ndarray:
-        """(E,) blendshape weights on one or two expressions, or PCA coefficients."""
+        """(E,) blendshape weights on up to ``expression_active`` expressions (each on with
+        probability 0.7, weight uniform in [0, ``expression_max``]), or PCA coefficients."""
         m = self.model
         e = np.zeros(m.n_expression)
         if m.n_expression == 0:
             return e
         if m.expression_kind == "blendshapes":
-            on = rng.choice(m.n_expression, size=min(2, m.n_expression), replace=False)
+            on = rng.choice(m.n_expression, size=min(self.expression_active, m.n_expression), replace=False)
             e[on] = rng.uniform(0, self.expression_max, len(on)) * (rng.random(len(on)) < 0.7)
         else:
             e = rng.standard_normal(m.n_expression) * self.expression_max

@@ -32,7 +32,8 @@ import numpy as np
 from ..errors import InputError
 from ..logs import import_open3d
 
-__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene", "closest_points"]
+__all__ = ["Visibility", "visibility", "uv_visibility", "check_mesh", "scene", "closest_points",
+           "points_in_view"]
 
 _MESHES: "list[CachedMesh]" = []  # most recently used last
 _MESH_CACHE_SIZE = 4
@@ -372,6 +373,56 @@ def cast_foreground(sc, rays):
     # Embree's (u, v) weight corners 1 and 2: p = (1 - u - v) p0 + u p1 + v p2
     bary = np.stack([1.0 - u - v, u, v], 1)
     return hits, np.take(tri.ravel(), hits), bary, np.take(t_hit.ravel(), hits)
+
+
+def points_in_view(vertices, triangles, camera, points, normals, offset_mm=None) -> np.ndarray:
+    """Which surface points the camera sees: nothing of the mesh lies between them and it.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, mm; triangles : (F, 3) int
+    camera : morphable.camera.Camera
+    points : (N, 3) float, mm, points on the mesh's surface
+    normals : (N, 3) unit surface normals at them (the ray starts just off the surface so
+        that it does not hit its own triangle)
+    offset_mm : None: the ray starts ``1e-3`` of the mesh's size along normal + view
+        direction (robust for texels; a point within that distance of a silhouette may be
+        taken as seen); a float: it starts ``offset_mm`` along the view direction only and
+        points whose normal faces away from the camera are not seen (exact labels)
+
+    Returns
+    -------
+    (N,) bool: a ray from just off each point towards the camera (the pinhole, or along the
+    axis for an affine camera) hits no triangle before the camera. Points behind a
+    perspective camera, or NaN points, are False. Faces turned away are not excluded here
+    (a point on a back face whose ray escapes counts as seen).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    out = np.zeros(len(points), dtype=bool)
+    ok = np.isfinite(points).all(1) & np.isfinite(normals).all(1)
+    if camera.kind != "affine":
+        with np.errstate(invalid="ignore"):
+            ok &= camera.depth(points) > 0
+    k = np.flatnonzero(ok)
+    if not len(k):
+        return out
+    d = camera.view_directions(points[k])
+    n = np.asarray(normals, dtype=np.float64)[k]
+    if offset_mm is None:
+        eps = 1e-3 * float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+        origins = points[k] + eps * (d + n)
+    else:
+        facing = np.einsum("nc,nc->n", n, d) > 0
+        k, d = k[facing], d[facing]
+        origins = points[k] + float(offset_mm) * d
+    t_hit, _, _ = cast(scene(vertices, triangles),
+                       np.concatenate([origins, d], 1).astype(np.float32))
+    if camera.kind == "affine":
+        hidden = np.isfinite(t_hit)
+    else:
+        hidden = t_hit < np.linalg.norm(camera.centre - origins, axis=1)
+    out[k[~hidden]] = True
+    return out
 
 
 def closest_points(vertices, triangles, points):
