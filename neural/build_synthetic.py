@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from morphable.errors import InputError, MorphableError
+from morphable.errors import InputError, one_line_errors
 
 __all__ = ["build", "load_pack", "shard_faces", "main"]
 
@@ -262,17 +262,14 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@one_line_errors("neural.build_synthetic")
 def main(argv=None) -> int:
     from morphable.logs import configure, verbosity
 
     args = build_parser().parse_args(argv)
     configure(verbosity(args))
-    try:
-        m = build(args.out, args.n, args.resolution, args.seed, args.model, args.workers, args.data,
-                  args.shard_size, args.textures, args.texture_size, args.backgrounds)
-    except MorphableError as e:
-        print(f"neural.build_synthetic: error: {e}", file=sys.stderr)
-        return 2
+    m = build(args.out, args.n, args.resolution, args.seed, args.model, args.workers, args.data,
+              args.shard_size, args.textures, args.texture_size, args.backgrounds)
     print(json.dumps(m["report"]))
     return 0
 
