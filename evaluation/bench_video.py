@@ -80,23 +80,9 @@ def error(points, truth) -> float:
 
 
 def per_frame_fits(path, model) -> np.ndarray:
-    """Independent fits: each frame detected and fitted alone -> (F, 68, 2) px."""
-    from morphable.detection import detect_landmarks
-    from morphable.errors import FitError
-    from morphable.fitting import fit_landmarks
-    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
-    from morphable.video import iter_frames
-
-    out = []
-    for frame in iter_frames(path):
-        try:
-            pts = detect_landmarks(frame.image)
-        except FitError:
-            out.append(np.full((68, 2), np.nan))
-            continue
-        res = fit_landmarks(model, pts, frame.size, model_std_mm=DETECTED_MODEL_STD_MM)
-        out.append(res.landmarks_68_px()[0])
-    return np.array(out)
+    """Independent fits (:func:`per_frame_results`) -> (F, 68, 2) px, NaN where no face."""
+    return np.array([np.full((68, 2), np.nan) if r is None else r.landmarks_68_px()[0]
+                     for r in per_frame_results(path, model)])
 
 
 def peak_rss_mb(path) -> float:
@@ -110,6 +96,168 @@ def peak_rss_mb(path) -> float:
     return float(out.stdout.split()[1])
 
 
+def camera_vertices(rotations, vertices, shifts=None) -> np.ndarray:
+    """(F, V, 3) mm: meshes (F, V, 3) or one (V, 3) turned by (F, 3, 3) rotations and moved by
+    (F, 2) image-plane shifts, mm (the camera frame without depth, which an affine camera
+    does not see)."""
+    out = np.einsum("fij,fvj->fvi", rotations, np.broadcast_to(vertices, (len(rotations), *np.shape(vertices)[-2:])))
+    if shifts is not None:
+        out[..., :2] += np.asarray(shifts)[:, None, :]
+    return out
+
+
+def shape_errors(model, meshes, scan) -> np.ndarray:
+    """(F,) mm: each model-frame mesh (F, V, 3) against the scan by the Florence metric
+    (landmark similarity, ICP, mean point-to-plane error within 95 mm of the nose tip)."""
+    from evaluation.florence.methods import Reconstruction
+    from evaluation.florence.protocol import evaluate
+
+    return np.array([evaluate(Reconstruction.from_vertices(model, v, 0.0, 1), scan)[0]["mean_mm"]
+                     for v in meshes])
+
+
+def rotation_error_deg(rotations, truth) -> np.ndarray:
+    """(F,) degrees: the angle of R_i truth_i^T."""
+    cos = (np.einsum("fij,fij->f", rotations, truth) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def per_frame_results(path, model) -> list:
+    """Independent fits: each frame detected and fitted alone -> FitResult or None per frame."""
+    from morphable.detection import detect_landmarks
+    from morphable.errors import FitError
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.video import iter_frames
+
+    out = []
+    for frame in iter_frames(path):
+        try:
+            pts = detect_landmarks(frame.image)
+        except FitError:
+            out.append(None)
+            continue
+        out.append(fit_landmarks(model, pts, frame.size, model_std_mm=DETECTED_MODEL_STD_MM))
+    return out
+
+
+def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: int = 0) -> dict:
+    """Track rendered Florence videos of ``scan`` (:func:`evaluation.videos.write_rendered_video`,
+    ``n_frames`` per condition) -> {condition: {row: figures}}; the mp4 files stay in ``work``.
+
+    Rows: ``truth`` (its rigid motion), ``track`` (prior at 4 Hz), ``track, no prior``,
+    ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
+    ``rotation_deg`` (mean angle from the true head rotation), ``jitter_mm`` (vertex
+    acceleration, :func:`vertex_jitter`, of the face turned and moved in the image plane),
+    ``frames_per_s``, ``frames_lost``."""
+    from evaluation.videos import synthetic_video, write_rendered_video
+    from morphable.camera import euler_to_matrix
+    from morphable.tracking import track_video
+
+    out = {}
+    for c in conditions:
+        video = synthetic_video(scan, c, model.landmark_positions(), n_frames=n_frames, seed=seed)
+        clip = write_rendered_video(scan, video, work / f"{c}.mp4", seed=seed)
+        true_rot = np.stack([euler_to_matrix(*p) for p in video.poses_deg])
+        rows, neutral = {}, None
+        for name, hz in (("track", 4.0), ("track, no prior", 0.0)):
+            t = time.perf_counter()
+            tr = track_video(clip, model=model, smoothing_hz=hz)
+            seconds = time.perf_counter() - t
+            ok = tr.tracked
+            meshes = np.full((n_frames, model.n_vertices, 3), np.nan)
+            meshes[ok] = tr.fit.vertices()
+            rot = np.stack([euler_to_matrix(*e) if np.isfinite(e).all() else np.full((3, 3), np.nan)
+                            for e in tr.euler_deg])
+            neutral = model.vertices(tr.identity) if neutral is None else neutral
+            rows[name] = {"shape_mm": float(shape_errors(model, meshes[ok], scan).mean()),
+                          "rotation_deg": float(np.nanmean(rotation_error_deg(rot, true_rot))),
+                          "jitter_mm": jitter(camera_vertices(rot, meshes, tr.translation[:, :2])),
+                          "frames_per_s": n_frames / seconds, "frames_lost": int((~ok).sum())}
+        t = time.perf_counter()
+        single = per_frame_results(clip, model)
+        seconds = time.perf_counter() - t
+        ok = np.array([r is not None for r in single])
+        meshes = np.full((n_frames, model.n_vertices, 3), np.nan)
+        rot = np.full((n_frames, 3, 3), np.nan)
+        shift = np.full((n_frames, 2), np.nan)
+        for i, r in enumerate(single):
+            if r is not None:
+                meshes[i], rot[i], shift[i] = r.vertices(0), r.cameras[0].rotation, r.cameras[0].translation[:2]
+        rows["per-frame fits"] = {"shape_mm": float(shape_errors(model, meshes[ok], scan).mean()),
+                                  "rotation_deg": float(np.nanmean(rotation_error_deg(rot, true_rot))),
+                                  "jitter_mm": jitter(camera_vertices(rot, meshes, shift)),
+                                  "frames_per_s": n_frames / seconds, "frames_lost": int((~ok).sum())}
+        # the truth: the scan is rigid, the face turns with the head (the tracked identity's
+        # vertices, so that the vertex set is the same); the head's centre does not move
+        rows = {"truth": {"jitter_mm": jitter(camera_vertices(true_rot, neutral))}, **rows}
+        out[c] = {"image_size": list(video.image_size), "rows": rows}
+    return out
+
+
+def florence_protocol_on_videos(scan, model, clips: dict, methods, n_frames: int = 30) -> dict:
+    """``florence --videos`` on the mp4 files against ``florence --detect`` on the same frames
+    rendered (with its pinhole camera of known focal, and with ``--camera affine`` as the
+    videos' unknown focal forces) -> {"detect": report, "detect, affine": report, "videos":
+    report, "landmark_shift_px": {condition: median distance between the detections}}."""
+    from evaluation.florence.protocol import run_protocol, video_landmarks
+
+    conditions = list(clips)
+    detect = ("auto", "auto")
+    out = {"detect": run_protocol(scan, model, methods, conditions, n_frames=n_frames,
+                                  detect=detect)[0],
+           "detect, affine": run_protocol(scan, model, methods, conditions, n_frames=n_frames,
+                                          detect=detect, efforts={"ours": {"camera": "affine"}})[0],
+           "videos": run_protocol(scan, model, methods, conditions, videos=clips, detect=detect)[0]}
+    shift = {}
+    for c, clip in clips.items():
+        a = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect)[0]
+        b = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect, video=clip)[0]
+        shift[c] = float(np.nanmedian(np.linalg.norm(a - b, axis=-1)))
+    out["landmark_shift_px"] = shift
+    return out
+
+
+def florence_main(args) -> int:
+    """``--florence``: the benchmark on rendered Florence videos of james."""
+    from evaluation.florence.protocol import format_table
+    from evaluation.scans import load_scan
+    from morphable import load_model
+
+    scan = load_scan(DATA / "scans" / "james" / "james.obj", DATA / "scans" / "james" / "james.ljson")
+    model = load_model("sfm")
+    work = Path(tempfile.mkdtemp(prefix="bench_video."))
+    report = {"tracking": florence_tracking(scan, model, args.conditions, args.frames, work)}
+    print(f"rendered Florence videos of james, {args.frames} frames each, 30 frames/s")
+    print(f"{'':26s} {'shape mm':>9s} {'rotation °':>10s} {'jitter mm/frame²':>17s} {'frames/s':>9s} {'lost':>5s}")
+    for c, r in report["tracking"].items():
+        for name, x in r["rows"].items():
+            print(f"{c + ' ' + name:26s} {x.get('shape_mm', float('nan')):9.3f} "
+                  f"{x.get('rotation_deg', float('nan')):10.2f} {x['jitter_mm']:17.4f} "
+                  f"{x.get('frames_per_s', float('nan')):9.1f} {x.get('frames_lost', 0):5d}")
+    if args.florence_methods:
+        clips = {c: work / f"{c}.mp4" for c in args.conditions}
+        runs = florence_protocol_on_videos(scan, model, clips, args.florence_methods, args.frames)
+        report["florence"] = runs
+        for name in ("detect", "detect, affine", "videos"):
+            print(f"\n{name}:\n" + format_table(runs[name]))
+        print("\nmedian distance between the detections on the rendered frames and on the mp4 "
+              "frames, px: " + ", ".join(f"{c} {v:.2f}" for c, v in runs["landmark_shift_px"].items()))
+    _write_report(args.report, report)
+    for f in work.iterdir():
+        f.unlink()
+    work.rmdir()
+    return 0
+
+
+def _write_report(path, report) -> None:
+    if path:
+        from morphable.io.atomic import atomic_path
+
+        with atomic_path(path) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=2))
+
+
 @one_line_errors("python -m evaluation.bench_video")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -117,9 +265,18 @@ def main(argv=None) -> int:
     p.add_argument("--rss-frames", type=int, default=0,
                    help="4K memory test: a video of this many frames and one 4 times as long (0: skip)")
     p.add_argument("--report", help="JSON report")
+    p.add_argument("--florence", action="store_true",
+                   help="instead: track rendered Florence videos of james (--frames per condition)")
+    p.add_argument("--conditions", nargs="+", default=["cooperative", "indoor", "outdoor"],
+                   help="--florence: conditions")
+    p.add_argument("--florence-methods", nargs="*", default=[],
+                   help="--florence: also florence --videos on the mp4 files against --detect "
+                        "on the same frames, with these methods")
     add_verbosity_arguments(p)
     args = p.parse_args(argv)
     configure(verbosity(args))
+    if args.florence:
+        return florence_main(args)
 
     from morphable import load_model
     from morphable.tracking import track_video
@@ -163,11 +320,7 @@ def main(argv=None) -> int:
     if args.rss_frames:
         print("peak RSS streaming 3840x2160: " + ", ".join(f"{k} frames {v:.0f} MB"
                                                           for k, v in report["peak_rss_mb_4k"].items()))
-    if args.report:
-        from morphable.io.atomic import atomic_path
-
-        with atomic_path(args.report) as tmp:
-            Path(tmp).write_text(json.dumps(report, indent=2))
+    _write_report(args.report, report)
     for f in work.iterdir():
         f.unlink()
     work.rmdir()

@@ -34,7 +34,8 @@ from morphable.raster.visibility import scene as raycasting_scene
 from morphable.video import sample_indices
 
 __all__ = ["Condition", "CONDITIONS", "Video", "frontal_frame", "trajectory", "sample_frames",
-           "project_landmarks", "synthetic_video", "render_frames", "detect_landmarks"]
+           "project_landmarks", "synthetic_video", "render_frames", "write_rendered_video",
+           "detect_landmarks"]
 
 
 @dataclass(frozen=True)
@@ -317,6 +318,19 @@ def render_frames(scan, video: Video, frames=None, seed: int = 0, supersample: i
             img = img + rng.normal(0.0, cond.noise, img.shape)
         out.append(np.clip(img, 0.0, 1.0))
     return np.stack(out)
+
+
+def write_rendered_video(scan, video: Video, path, seed: int = 0, fps: float = 30.0):
+    """Render every frame of a synthetic video (:func:`render_frames`, one call: the sensor
+    noise is drawn in frame order), made 8-bit as a detector makes a rendered frame
+    (:func:`morphable.detection.images.as_image`), and write them as H.264
+    (:func:`morphable.video.write_video`, crf 18) -> the path. Memory: all the frames at once,
+    (n, H, W, 3) float64."""
+    from morphable.detection.images import as_image
+    from morphable.video import write_video
+
+    frames = render_frames(scan, video, frames=np.arange(len(video.cameras)), seed=seed)
+    return write_video(path, (as_image(f)[0] for f in frames), fps=fps)
 
 
 def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:

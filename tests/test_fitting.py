@@ -936,3 +936,25 @@ def test_fit_options_carry_the_defaults_of_fit_landmarks():
         FitOptions(focal_px=[500.0, -1.0])
     with pytest.raises(dataclasses.FrozenInstanceError):
         FitOptions().camera = "perspective"
+
+
+def test_outline_points_follow_each_models_mean_shape(sfm):
+    # the march lines depend on a model's mean shape alone and are made once per model: a
+    # tracked identity baked into the mean (morphable.tracking) gets its own, not SFM's
+    import dataclasses
+
+    from morphable.camera import Camera
+    from morphable.tracking import fixed_identity_model
+
+    cam = Camera.looking_at_face(image_size=(512, 512), yaw=40.0)
+    identity = np.zeros(sfm.n_identity)
+    identity[:3] = 3.0
+    fixed = fixed_identity_model(sfm, identity)
+    simulate_landmarks(sfm, cam, vertices=fixed.mean)          # SFM's lines made first
+    first = simulate_landmarks(fixed, cam)
+    again = simulate_landmarks(fixed, cam)                     # from the model's cache
+    fresh = simulate_landmarks(dataclasses.replace(fixed), cam)  # another model: made anew
+    np.testing.assert_array_equal(first, again)
+    np.testing.assert_array_equal(first, fresh)
+    sfm_lines = simulate_landmarks(sfm, cam, vertices=fixed.mean)
+    assert np.nanmax(np.abs(first - sfm_lines)) > 0.5          # the lines did differ

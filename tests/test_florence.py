@@ -643,6 +643,50 @@ def test_real_frames_folder(james, sfm, tmp_path):
         run_protocol(james, sfm, ["mean-face"], ["outdoor"], n_sampled=2, frames_dir=tmp_path / "james")
 
 
+def test_protocol_on_a_real_video(james, james_paths, sfm, tmp_path):
+    """--videos: the sampled frames of an mp4 (here the rendered Florence video) detected,
+    as --detect does on the rendered frames themselves."""
+    pytest.importorskip("av")
+    pytest.importorskip("dlib")
+    from evaluation.florence.protocol import run_protocol, video_landmarks
+    from evaluation.videos import synthetic_video, write_rendered_video
+
+    video = synthetic_video(james, "outdoor", sfm.landmark_positions(), n_frames=6, n_sampled=2)
+    clip = write_rendered_video(james, video, tmp_path / "outdoor.mp4")
+    detect = ("dlib", "auto")
+    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect,
+                                             video=clip, with_frames=True)
+    assert size == (256, 256) and lm.shape == (2, 68, 2) and frames.shape == (2, 256, 256, 3)
+    assert desc["frames"] == [0, 5] and desc["times_s"] == [0.0, round(5 / 30, 4)]
+    assert desc["landmarks"] == "dlib hog on video frames" and desc["frames_without_face"] == []
+    rendered, _, _, _ = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect)
+    # the same frames, 8-bit and H.264 on one side: the detector moves by about a pixel
+    assert np.median(np.linalg.norm(lm - rendered, axis=-1)) < 2.0
+    report, errors = run_protocol(james, sfm, ["eos", "mean-face"], ["indoor"], n_sampled=2,
+                                  videos={"outdoor": str(clip)}, detect=detect)
+    assert list(report["videos"]) == ["outdoor"] and report["videos"]["outdoor"]["source"] == str(clip)
+    assert report["settings"]["detect"] == "dlib hog" and report["settings"]["video_frames"] is None
+    assert 0.2 < report["methods"]["eos"]["outdoor"]["mean_mm"] < 5.0 and len(errors) == 2
+    # the command: conditions from --videos, the same table
+    r = run_cli("--scan", james_paths[0], "--scan-landmarks", james_paths[1],
+                "--videos", f"outdoor={clip}", "--methods", "mean-face", "--frames", "2",
+                "--landmark-detector", "dlib", "--report", tmp_path / "r.json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert list(rep["methods"]["mean-face"]) == ["outdoor"] and "outdoor" in r.stdout
+    assert rep["videos"]["outdoor"]["frames"] == [0, 5]
+
+
+def test_parse_videos():
+    from evaluation.florence.cli import parse_videos
+
+    assert parse_videos(["indoor=a.mp4", "outdoor=b=c.mp4"]) == {"indoor": "a.mp4", "outdoor": "b=c.mp4"}
+    for bad, message in ((["a.mp4"], "expected CONDITION=PATH"), (["studio=a.mp4"], "unknown condition"),
+                         (["indoor=a.mp4", "indoor=b.mp4"], "given twice"), (["indoor="], "CONDITION=PATH")):
+        with pytest.raises(InputError, match=message):
+            parse_videos(bad)
+
+
 @pytest.fixture
 def random_gar(tmp_path, monkeypatch):
     """An untrained tiny GAR as the renderer's weights (fast; the committed one is not needed)."""

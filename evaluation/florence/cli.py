@@ -68,6 +68,10 @@ def _parser():
                         "instead of projected scan landmarks")
     add_detector_arguments(p)
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
+    p.add_argument("--videos", nargs="+", metavar="COND=PATH",
+                   help="real videos, one per condition (e.g. indoor=clip.mp4): --frames frames "
+                        "spread uniformly over each, their landmarks detected "
+                        "(--landmark-detector, --face-detector); the conditions are these")
     p.add_argument("--n-iterations", type=int,
                    help="nonlinear iterations of ours (default: the fitter's)")
     p.add_argument("--definition-std", type=float,
@@ -101,6 +105,23 @@ def _parser():
     return p
 
 
+def parse_videos(items) -> dict:
+    """``["indoor=clip.mp4", ...]`` -> {condition: path}; InputError for an item without
+    ``=``, a condition not in :data:`evaluation.videos.CONDITIONS`, or one given twice."""
+    out = {}
+    for item in items:
+        cond, sep, path = item.partition("=")
+        if not sep or not path:
+            raise InputError(f"--videos {item}: expected CONDITION=PATH")
+        if cond not in CONDITIONS:
+            raise InputError(f"--videos {item}: unknown condition {cond!r}; choose from "
+                             f"{', '.join(CONDITIONS)}")
+        if cond in out:
+            raise InputError(f"--videos {item}: condition {cond} given twice")
+        out[cond] = path
+    return out
+
+
 def _write_outputs(report: dict, errors: list, report_path: Path, errors_path: Path):
     from morphable.io.atomic import atomic_path
 
@@ -121,7 +142,7 @@ def main(argv=None) -> int:
     for p in (report_path, errors_path):
         if not p.parent.is_dir() and str(p.parent):
             raise InputError(f"{p}: output folder {p.parent} does not exist")
-    if args.frames < 1 or args.video_frames < args.frames:
+    if args.frames < 1 or (args.video_frames < args.frames and not args.videos):
         raise InputError(f"--frames {args.frames}: need 1 <= frames <= --video-frames "
                          f"({args.video_frames})")
     from morphable import load_model
@@ -139,7 +160,7 @@ def main(argv=None) -> int:
             raise InputError(f"--definition-noise {args.definition_noise}: must be >= 0")
         if not (np.isfinite(args.expression_std) and args.expression_std >= 0):
             raise InputError(f"--expression-std {args.expression_std}: must be >= 0")
-        for bad in ("frames_dir", "heatmaps"):
+        for bad in ("frames_dir", "heatmaps", "videos"):
             if getattr(args, bad):
                 raise InputError(f"--{bad.replace('_', '-')} does not apply to --synthetic-scan")
         if args.appearance and not (args.detect or "gar" in args.methods):
@@ -159,8 +180,18 @@ def main(argv=None) -> int:
             if v is not None}
     if args.focal_px is not None and not (np.isfinite(args.focal_px) and args.focal_px > 0):
         raise InputError(f"--focal-px {args.focal_px}: must be a positive number")
-    if args.focal_px is not None and not args.frames_dir:
-        raise InputError("--focal-px applies to --frames-dir (synthetic videos know their focal)")
+    if args.focal_px is not None and not (args.frames_dir or args.videos):
+        raise InputError("--focal-px applies to --frames-dir and --videos (synthetic videos know "
+                         "their focal)")
+    videos = parse_videos(args.videos) if args.videos else None
+    if videos and args.frames_dir:
+        raise InputError("give --videos or --frames-dir, not both")
+    if videos:
+        detect = (args.landmark_detector, args.face_detector)   # a video's frames are detected
+        from morphable.video import probe
+
+        for path in videos.values():     # not a video, no frames: before any fit
+            probe(path)
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
     if args.gar_steps is not None:
         if args.gar_steps < 1:
@@ -189,8 +220,9 @@ def main(argv=None) -> int:
                                      n_frames=args.video_frames, n_videos=args.n_videos,
                                      **common)
         elif args.n_videos != 1:
-            if args.frames_dir:
-                raise InputError("--n-videos draws synthetic videos; --frames-dir has one")
+            if args.frames_dir or videos:
+                raise InputError("--n-videos draws synthetic videos; --frames-dir and --videos "
+                                 "have one")
             report, errors = run_videos(scan, model, args.methods, args.conditions,
                                         args.n_videos, args.seed, n_sampled=args.frames,
                                         n_frames=args.video_frames, detect=detect, **common)
@@ -198,7 +230,7 @@ def main(argv=None) -> int:
             report, errors = run_protocol(scan, model, args.methods, args.conditions,
                                           args.frames, args.video_frames, args.seed,
                                           detect=detect, frames_dir=args.frames_dir,
-                                          focal_px=args.focal_px, **common)
+                                          focal_px=args.focal_px, videos=videos, **common)
     cells = [cell for per in report["methods"].values() for cell in per.values()]
     if cells and all("error" in cell for cell in cells):
         raise FitError(f"every reconstruction failed; first: {cells[0]['error']}")

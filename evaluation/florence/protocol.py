@@ -22,7 +22,7 @@ from ..scans import Scan, model_scan
 from ..videos import CONDITIONS, sample_frames, synthetic_video
 from .methods import Frames, Reconstruction, ibug68_points, prepare_methods, reconstruct_video
 
-__all__ = ["ErrorMap", "evaluate", "video_landmarks", "detector_error", "run_protocol",
+__all__ = ["ErrorMap", "evaluate", "frames_from_video", "video_landmarks", "detector_error", "run_protocol",
            "run_model_scans", "run_videos", "format_table", "save_error_maps", "save_heatmap"]
 
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
@@ -158,14 +158,47 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
             detected)
 
 
+def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("auto", "auto")):
+    """The Florence protocol's frames of a real video: ``k`` frames spread uniformly
+    (:func:`morphable.video.sample_frames`, all of a shorter video), their landmarks detected
+    (:func:`evaluation.videos.detect_landmarks`, ``detector`` = (landmark detector, face
+    detector)) -> ((k, L, 2) px, NaN rows for frames without a face, (W, H) px, description
+    for the report, the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None).
+
+    InputError naming the file when it is no readable video or no sampled frame shows a face.
+    """
+    from morphable.detection import describe
+    from morphable.video import sample_frames
+
+    from ..videos import detect_landmarks
+
+    frames = sample_frames(path, k)
+    lm = np.stack([detect_landmarks(f.image, *detector) for f in frames])
+    found = np.isfinite(lm).all(-1).any(-1)
+    if not found.any():
+        raise InputError(f"{path}: no face found in any of the {len(frames)} sampled frames")
+    desc = {"source": str(path), "frames": [f.index for f in frames],
+            "times_s": [round(f.time_s, 4) for f in frames], "image_size": list(frames[0].size),
+            "landmarks": f"{describe(*detector)} on video frames",
+            "frames_without_face": [f.index for f, ok in zip(frames, found) if not ok],
+            "detected": [True] * len(frames), "n_landmarks": np.isfinite(lm[..., 0]).sum(1).tolist()}
+    images = np.stack([f.image for f in frames]) / 255.0 if with_frames else None
+    return lm, frames[0].size, desc, images
+
+
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
-                    detect=None, frames_dir=None, with_frames: bool = False):
+                    detect=None, frames_dir=None, with_frames: bool = False, video=None):
     """Landmarks of the sampled frames of one video -> ((k, L, 2) px (68, or the face mesh's
     478 when it detected them), (W, H), description,
     frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
-    ``frames_dir`` — when ``with_frames``, else None. ``detect``: None (projected scan
-    landmarks) or (landmark detector, face detector) run on the rendered frames (and on the
-    frames of ``frames_dir`` that have no ``.pts``)."""
+    ``frames_dir`` or ``video`` — when ``with_frames``, else None. ``detect``: None (projected
+    scan landmarks) or (landmark detector, face detector) run on the rendered frames (and on
+    the frames of ``frames_dir`` that have no ``.pts``, and always on those of ``video``, a
+    real video file: :func:`frames_from_video`)."""
+    if video is not None:
+        lm, size, desc, frames = frames_from_video(video, n_sampled, with_frames,
+                                                   detect or ("auto", "auto"))
+        return lm, size, desc, frames
     if frames_dir is not None:
         lm, size, frames, detected = _frames_from_folder(Path(frames_dir), condition, n_sampled,
                                                          with_frames, detect or ("auto", "auto"))
@@ -224,14 +257,16 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                  seed: int = 0, detect=None, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
                  landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None,
-                 prepared: dict | None = None):
+                 prepared: dict | None = None, videos: dict | None = None):
     """Run every method on every condition (``methods``: names in
     :data:`~evaluation.florence.methods.METHODS`; ``efforts``: {name: the method's settings};
     ``log``: a callable taking one line per cell; ``progress``: a tqdm bar on stderr;
     ``focal_px``: the camera's focal length for real frames, if known — synthetic videos know
     theirs; ``prepared``: the methods made and prepared for this scan and model by
     :func:`~evaluation.florence.methods.prepare_methods`, to share their per-scan work — surface
-    fits, loaded fitters — between runs on the same scan; default: prepared here).
+    fits, loaded fitters — between runs on the same scan; default: prepared here; ``videos``:
+    {condition: path} real videos, their sampled frames' landmarks detected with ``detect``
+    (default "auto"), instead of synthetic ones: the conditions are then its keys).
 
     Returns
     -------
@@ -239,6 +274,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     errors : list of :class:`ErrorMap`, one per cell that succeeded, condition by condition
     """
     efforts = efforts or {}
+    if videos is not None:
+        conditions, detect = list(videos), detect or ("auto", "auto")
     for c in conditions:
         if c not in CONDITIONS:
             raise InputError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
@@ -246,13 +283,17 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     report = {"methods": {m: {} for m in methods}, "videos": {}}
     errors = []
     alignment = None
+    with_frames = any(made[m].needs_images for m in methods)
+    # real videos are read and detected first: a bad one stops the run before any fit
+    read = {c: video_landmarks(scan, model, c, n_sampled, n_frames, seed, detect,
+                               with_frames=with_frames, video=path)
+            for c, path in (videos or {}).items()}
     bar = tqdm(total=len(conditions) * len(methods), disable=not progress, desc="florence",
                unit="cell")
     for c in conditions:
         bar.set_postfix_str(f"{c} video", refresh=False)
-        lm, size, desc, images = video_landmarks(
-            scan, model, c, n_sampled, n_frames, seed, detect, frames_dir,
-            with_frames=any(made[m].needs_images for m in methods))
+        lm, size, desc, images = read.pop(c, None) or video_landmarks(
+            scan, model, c, n_sampled, n_frames, seed, detect, frames_dir, with_frames=with_frames)
         frames = Frames(lm, size, images, desc.get("focal_px", focal_px), desc.get("detected"))
         report["videos"][c] = desc
         for m in methods:
@@ -285,7 +326,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     report["scan"] = {"path": scan.source, "units": scan.units,
                       "interocular_mm": round(scan.interocular_mm, 2),
                       "n_landmarks": int(np.isfinite(scan.landmarks).all(1).sum())}
-    report["settings"] = {"model": model.name, "frames": n_sampled, "video_frames": n_frames,
+    report["settings"] = {"model": model.name, "frames": n_sampled,
+                          "video_frames": None if videos is not None else n_frames,
                           "seed": seed, "detect": _detect_setting(detect), "efforts": efforts}
     return report, errors
 

@@ -11,6 +11,8 @@ camera — the cheek's silhouette, interpolated at the zero of the normal's z. T
 """
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from .correspondences import (arc_lengths, chain_arc, eye_corner_height, horizontal_lines,
@@ -59,18 +61,44 @@ def simulate_landmarks(model, camera, identity=None, expression=None, vertices=N
     normals = vertex_normals(verts, model.triangles) @ camera.rotation.T
     bank = landmark_bank(model, scheme)
     eye_y = eye_corner_height(model, scheme)
+    view = np.array([[0.0, 0.0, 1.0]])             # normals are already in the camera frame
     for side, chain in bank.polylines:
         chain_ids = bank.vertex_ids[chain]
         P, arc, at = jaw_arc_positions(model, side, chain_ids, verts, eye_y)
         facing = np.interp(at, arc, normals[chain_ids, 2])
-        view = np.array([[0.0, 0.0, 1.0]])         # normals are already in the camera frame
-        for j, p, nz, line in zip(side, interpolate_arc(P, arc, at), facing,
-                                  march_lines(model, side, chain_ids, eye_y)):
-            if march and nz < 0:
-                i0, i1, w = (x[0, 0] for x in march_silhouette(line[None], normals[line][None], view))
-                p = (1 - w) * verts[i0] + w * verts[i1]
-            lms[j] = camera.project(p[None])[0]
+        points = interpolate_arc(P, arc, at)
+        away = np.flatnonzero(facing < 0) if march else np.zeros(0, dtype=np.int64)
+        if away.size:
+            lines = _padded_march_lines(model, side, chain_ids, eye_y)[away]     # (J, M)
+            i0, i1, w = (x[0] for x in march_silhouette(lines, normals[lines], view))
+            points[away] = (1 - w)[:, None] * verts[i0] + w[:, None] * verts[i1]
+        lms[side] = camera.project(points)
     return lms
+
+
+_MEAN_SHAPE = weakref.WeakKeyDictionary()
+"""Per model: what depends on its mean shape alone (:func:`expected_jaw_points`, the march
+lines), made once: a track's frames share one model."""
+
+
+def _cached(model, key, make):
+    per_model = _MEAN_SHAPE.setdefault(model, {})
+    if key not in per_model:
+        per_model[key] = make()
+    return per_model[key]
+
+
+def _padded_march_lines(model, lms, chain_ids, eye_y) -> np.ndarray:
+    """:func:`march_lines` as one (J, M) array of vertex ids, -1 padded, cached per model."""
+    def make():
+        lines = march_lines(model, lms, chain_ids, eye_y)
+        out = np.full((len(lines), max(len(v) for v in lines)), -1, dtype=np.int64)
+        for i, v in enumerate(lines):
+            out[i, :len(v)] = v
+        return out
+
+    return _cached(model, ("march", tuple(np.ravel(lms).tolist()),
+                           tuple(np.ravel(chain_ids).tolist()), eye_y), make)
 
 
 def jaw_arc_positions(model, lms, chain_ids, vertices, eye_y):
@@ -91,10 +119,15 @@ def expected_jaw_points(model, lms, chain_ids, eye_y):
     (:func:`~morphable.fitting.correspondences.eye_corner_height`): the landmarks are evenly
     spaced by arc length from where the chain passes that height (its top if lower) down to
     the chin (iBUG 9), which ends the chain."""
-    P, arc, start = chain_arc(model, chain_ids, eye_y)
-    frac = np.arange(len(lms)) / len(lms)
-    at = start + frac * (arc[-1] - start)
-    return interpolate_arc(P, arc, at), at, arc
+    def make():
+        P, arc, start = chain_arc(model, chain_ids, eye_y)
+        frac = np.arange(len(lms)) / len(lms)
+        at = start + frac * (arc[-1] - start)
+        return interpolate_arc(P, arc, at), at, arc
+
+    # cached per model (the mean shape's alone); copies, as callers may change them
+    return tuple(x.copy() for x in _cached(model, ("jaw", tuple(np.ravel(lms).tolist()),
+                                                   tuple(np.ravel(chain_ids).tolist()), eye_y), make))
 
 
 def march_lines(model, lms, chain_ids, eye_y, height_mm: float = 3.0,
