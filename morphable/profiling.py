@@ -12,7 +12,9 @@ The idea of 3DDFA's face profiling (Zhu et al., CVPR 2016), on our rasteriser:
    head; rings of anchors around the outline (:data:`RINGS`: scale from the centre, share of
    the turn) stand for hair, ears and neck at the depth of their outline point and turn less
    the further out they lie; anchors on the image border stay;
-3. the face is drawn over the warped picture through the fitted mesh at the new pose with the
+3. the photo's own face is filled from its surroundings first (push-pull,
+   :func:`morphable.texture.push_pull_fill`), so that what the warp carries out from under the
+   new face at large turns shows hair or skin rather than a second face; the face is drawn over the warped picture through the fitted mesh at the new pose with the
    photo's own UV texture (:func:`morphable.texture.texture_from_views`, unlit: the photo's
    light stays in the texture), whose mirror fill colours the side the photo does not show.
 
@@ -201,7 +203,7 @@ def profile_photo(image, fit, delta_yaw_deg: float, delta_pitch_deg: float = 0.0
     """
     from .detection.images import as_image
     from .labels import label_schemes, project_labels
-    from .raster import render
+    from .raster import render, visibility
     from .texture import texture_from_views
 
     dy, dp = float(delta_yaw_deg), float(delta_pitch_deg)
@@ -224,9 +226,15 @@ def profile_photo(image, fit, delta_yaw_deg: float, delta_pitch_deg: float = 0.0
     pivot = head_pivot(model, v)
     new_cam = turned_camera(cam, pivot, dy, dp)
     src, dst = warp_anchors(v, model.triangles, cam, pivot, dy, dp)
-    background = _warp(photo.astype(np.float64) / 255, src, dst)
-    from .raster import visibility
+    source = photo.astype(np.float64) / 255
+    if not np.allclose(src, dst):
+        # the photo's own face is drawn again at the new pose: where the warp would carry it
+        # out from under the new face (the far side at large turns) it shows its surroundings
+        from .texture import push_pull_fill
 
+        old = visibility(v, model.triangles, cam).coverage()
+        source = push_pull_fill(source, 1.0 - old)
+    background = _warp(source, src, dst)
     vis = visibility(v, model.triangles, new_cam, supersample=supersample)
     img = render(v, model.triangles, texture=(texture.uv, texture.triangle_uv, texture.image),
                  light=np.eye(9)[0], background=np.clip(background, 0, 1), vis=vis)
