@@ -26,7 +26,6 @@ Tables by |yaw| bin [0, 30], (30, 60], (60, 90] and by light kind. Command::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -177,10 +176,9 @@ def main(argv=None) -> int:
     print(format_tables(t))
     print(f"{args.n} faces drawn in {t_draw:.0f} s, {report['seconds']:.0f} s in all", file=sys.stderr)
     if args.report:
-        from morphable.io.atomic import atomic_path
+        from morphable.io.atomic import write_json
 
-        with atomic_path(args.report) as tmp:
-            Path(tmp).write_text(json.dumps(report, indent=1))
+        write_json(args.report, report)
     return 0
 
 

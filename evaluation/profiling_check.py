@@ -19,7 +19,6 @@ is a failure. Commands::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -157,8 +156,9 @@ def main(argv=None) -> int:
         print(f"| {r['delta_yaw_deg']:g} | {r['pictures']} | {r['failures']} | {f(r['px_mean'])} | "
               f"{f(r['nme_percent'])} |")
     if a.report:
-        with atomic_path(a.report) as tmp:
-            Path(tmp).write_text(json.dumps(report, indent=1))
+        from morphable.io.atomic import write_json
+
+        write_json(a.report, report)
     return 0
 
 
