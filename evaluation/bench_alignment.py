@@ -212,7 +212,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                steps: int = 100, renderer_options: dict | None = None,
                loss_weights: dict | None = None) -> dict:
     """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
-    renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo: ``pred`` (N, 68, 2) px (NaN rows: no face),
+    renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo
+    (``paths``: photo paths or (H, W, 3) uint8 arrays): ``pred`` (N, 68, 2) px (NaN rows: no face),
     ``ms`` (N,) wall ms (NaN for failures), ``euler_deg`` (N, 3) for fits (NaN otherwise),
     ``errors`` {photo: one-line reason}. With annotation ``boxes`` (N, 4) px, the face is the
     detector's face that overlaps the annotated one most (IoU >= 0.3, else a failure), each
@@ -220,7 +221,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     framing); otherwise the largest face found."""
     from morphable.detection import detect_faces, detect_ibug68, detect_landmarks
     from morphable.detection.boxes import iou
-    from morphable.detection.images import read_image
+    from morphable.detection.images import as_image
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM
 
@@ -233,11 +234,12 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     euler = np.full((N, 3), np.nan)
     errors = {}
     try:
-        detect_landmarks(read_image(paths[0]), landmark_detector=detector)  # warm-up (model load)
+        detect_landmarks(as_image(paths[0])[0], landmark_detector=detector)  # warm-up (model load)
     except FitError:
         pass
     for i, p in enumerate(paths):
-        img = read_image(p)
+        img, name = as_image(p)
+        name = name if isinstance(p, (str, Path)) else f"image {i}"
         t = time.perf_counter()
         try:
             box = None
@@ -245,7 +247,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 faces = detect_faces(img, landmark_detector=detector)
                 overlap = iou(faces, boxes[i]) if len(faces) else np.zeros(0)
                 if not len(faces) or overlap.max() < 0.3:
-                    raise FitError(f"{p}: no detected face on the annotated one")
+                    raise FitError(f"{name}: no detected face on the annotated one")
                 box = faces[int(np.argmax(overlap))]
             if method.startswith("ours-"):
                 pts = detect_landmarks(img, landmark_detector=detector, box=box)
@@ -257,7 +259,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
             else:
                 pred[i] = detect_ibug68(img, landmark_detector=detector, box=box)
         except (FitError, InputError) as e:
-            errors[str(p)] = str(e)
+            errors[name] = str(e)
             continue
         ms[i] = (time.perf_counter() - t) * 1e3
     return {"pred": pred, "ms": ms, "euler_deg": euler, "errors": errors}

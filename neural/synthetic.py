@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import FitError, InputError
+from morphable.labels import VIEW_OFFSET_MM, label_schemes  # noqa: F401  (VIEW_OFFSET_MM: re-exported)
 
 __all__ = ["LIGHTS", "POSE_MAX", "SyntheticEngine", "label_schemes", "texture_bank", "yaw_grid", "check",
            "background_bank", "label_exactness", "london_photos", "w300_photos"]
@@ -63,27 +64,9 @@ POSE_MAX = (90.0, 40.0, 30.0)
 DISTANCE_MM = (300.0, 2500.0)
 """Camera distance range (log-uniform), mm: from a close selfie to a portrait lens."""
 
-VIEW_OFFSET_MM = 0.01
-"""A label's visibility ray starts this far from its surface point towards the camera."""
 
 FACE_FRACTION = (0.3, 0.6)
 """150 mm of face at its centre spans this fraction of the image side (uniform)."""
-
-
-# --- label schemes ------------------------------------------------------------------------
-def label_schemes(model) -> dict:
-    """The labelled point sets of ``model``: {"68": iBUG-68, "478": face mesh} as
-    :class:`morphable.fitting.schemes.LandmarkScheme`. The iBUG rows the model has no vertex
-    for take the face-mesh scheme's counterpart point (see the module's notes)."""
-    from morphable.fitting.schemes import ibug68_scheme, load_scheme
-
-    mesh = load_scheme(model, "facemesh478")
-    ibug = ibug68_scheme(model)
-    vertices, bary = ibug.vertices.copy(), ibug.barycentric.copy()
-    fill = ~ibug.defined & (mesh.ibug68 >= 0)
-    vertices[fill] = mesh.vertices[mesh.ibug68[fill]]
-    bary[fill] = mesh.barycentric[mesh.ibug68[fill]]
-    return {"68": dataclasses.replace(ibug, vertices=vertices, barycentric=bary), "478": mesh}
 
 
 # --- real material: textures and backgrounds -------------------------------------------------
@@ -348,9 +331,8 @@ class SyntheticEngine:
         ``points68`` (68, 2), ``points478`` (478, 2) float32 px; ``visible68``,
         ``visible478``, ``occluded68``, ``occluded478``, ``defined68`` (bool); ``camera``
         (the Camera); ``mask`` (R, R) float32 face coverage; ``occluder_mask`` (R, R) bool."""
-        from morphable.normals import vertex_normals
+        from morphable.labels import project_labels
         from morphable.raster import render, visibility
-        from morphable.raster.visibility import points_in_view
 
         m, R = self.model, self.resolution
         cam = self.camera(p["pose"], p["distance_mm"], p["face_width_px"], p["shift_px"])
@@ -363,18 +345,8 @@ class SyntheticEngine:
             look = {"colors": p["albedo"]}
         image = render(verts, m.triangles, light=p["lights"], ambient=p["ambient"],
                        background=p["background"], shadows=True, vis=vis, **look)
-        normals = vertex_normals(verts, m.triangles)
         out = {"camera": cam, "mask": vis.coverage().astype(np.float32)}
-        for key, scheme in self.schemes.items():
-            P = scheme.points(verts)
-            N = scheme.points(normals)
-            N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
-            with np.errstate(invalid="ignore"):
-                xy = cam.project(P)
-                inside = ((xy > -0.5) & (xy < R - 0.5)).all(1)
-            out[f"points{key}"] = xy.astype(np.float32)
-            out[f"visible{key}"] = points_in_view(verts, m.triangles, cam, P, N,
-                                                  offset_mm=VIEW_OFFSET_MM) & inside
+        out.update(project_labels(verts, m.triangles, cam, self.schemes, offset_mm=VIEW_OFFSET_MM))
         out["defined68"] = self.schemes["68"].defined.copy()
         image, occ = _occlude(image, p["occluders"])
         out["occluder_mask"] = occ

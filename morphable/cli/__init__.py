@@ -12,7 +12,7 @@ import sys
 from ..errors import MorphableError
 from ..logs import add_verbosity_arguments, configure, verbosity
 
-COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "texture",
+COMMANDS = ["info", "sample", "convert", "download", "bake", "render", "show", "fit", "fit-batch", "texture", "profile",
             "track", "edit"]
 """Module names under ``morphable.cli``; the order is the order of ``morphable --help``."""
 

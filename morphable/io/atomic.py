@@ -47,3 +47,13 @@ def atomic_path(path, suffix: str | None = None):
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def write_json(path, obj, indent: int = 1):
+    """Write ``obj`` as JSON to ``path`` atomically (:func:`atomic_path`). Returns ``path``."""
+    import json
+    from pathlib import Path
+
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(obj, indent=indent))
+    return path
