@@ -25,6 +25,7 @@ box. ``"short-range"`` / ``"full-range"`` always take that detector's largest bo
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import os
@@ -97,6 +98,15 @@ def _quiet():
         os.close(saved)
 
 
+def _silence_stderr_at_exit():
+    """fd 2 to /dev/null once the program is done: mediapipe's graphs also log from their own
+    threads and destructors while the process ends, after a command has given its one line."""
+    sys.stderr.flush()
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 2)
+    os.close(null)
+
+
 @functools.lru_cache(maxsize=None)
 def _solutions():
     try:
@@ -105,6 +115,7 @@ def _solutions():
     except ImportError as e:
         raise InputError("the face mesh needs mediapipe: pip install -e '.[facemesh]' and "
                          f"pip install --no-deps mediapipe==0.10.14 ({e})") from None
+    atexit.register(_silence_stderr_at_exit)
     return face_detection, face_mesh
 
 
