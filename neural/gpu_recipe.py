@@ -146,12 +146,11 @@ def run_recipe(stages: list, out, python: str = sys.executable) -> dict:
                         report["jobs"][job["name"]] = entry
                         log.flush()
                         _write_json(out / "recipe.json", report)
-    # the per-job JSON files are in recipe.json: keep the returned files few
-    for job in (j for stage in stages for j in stage):
-        for dest in job["outputs"].values():
-            if dest.endswith(".json"):
-                (out / dest).unlink(missing_ok=True)
-    _write_json(out / "recipe.json", report)
+                        # now in recipe.json: the folder keeps few files even if the run is
+                        # cut off later (the device tool returns 8)
+                        for dest in job["outputs"].values():
+                            if dest.endswith(".json"):
+                                (out / dest).unlink(missing_ok=True)
     return report
 
 
