@@ -1,17 +1,19 @@
 """GPU recipes: one command that trains a set of networks on a lent GPU within a time budget
-and leaves their weights, sample grids, logs and one JSON summary in an output folder.
+and leaves their weights, logs and one JSON summary in an output folder.
 
-``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 6
+``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 5
 [--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``).
 
-A recipe is a list of stages; the jobs of a stage run at the same time (small networks leave
-most of a large GPU idle between kernel launches, so two runs side by side train nearly twice
-the images of one), each a ``python -m`` command of this package with its own time limit
-(``--max-minutes``; the runner kills a job that overruns it by ``GRACE_MINUTES``). While a job
-runs, its newest weights are copied into the output folder every ``POLL_SECONDS``, so a run
-cut off from outside still leaves the last checkpoint's weights (the trainers write one each
-minute). Output file names are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the
-device tool returns at most 8 files of 16 MiB.
+A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
+command of this package with its own time limit (``--max-minutes``; the runner kills a job
+that overruns it by ``GRACE_MINUTES``). Side by side was meant to fill the GPU's idle time
+between the small networks' kernel launches; on the first run (an H200, three GARs) each
+trained at 0.4 s per step of 64, far below the estimate, and one job alone was not measured
+(docs/neural.md, "The GPU recipe and its first run"). While a job runs, its newest weights are
+copied into the output folder every ``POLL_SECONDS``, so a run cut off from outside still
+leaves the last checkpoint's weights (the trainers write one each minute). Output file names
+are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool returns at most
+8 files of 16 MiB.
 
 ``recipe.json``: per job its command, wall seconds, exit status, and the trainer's own
 ``summary.json`` / ``metrics.json`` (steps, images seen, images/s, final losses); the device
@@ -22,8 +24,8 @@ with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack side by side (a 12
 serves all: the 64-px runs area-downsample it), then the first two's inverters V, side by
 side too; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
 ``inverter_64.pt``, ``inverter_128.pt``, ``recipe.json`` and ``log.txt`` (sample grids are
-made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs N steps of each job instead (the CPU
-test of the recipe).
+made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs
+N steps of each job instead (the CPU test of the recipe).
 """
 from __future__ import annotations
 
@@ -52,7 +54,7 @@ def _job(name, module, args, minutes, outputs, run_dir):
             "minutes": float(minutes), "dir": str(Path(run_dir) / name), "outputs": outputs}
 
 
-def gar_recipe(data, run_dir, minutes: float = 6.0, inverter_minutes: float = 1.0,
+def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.0,
                device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
                aux_dir: str = "neural/weights/real") -> list:
     """The GAR's stages: [[tiny-gpu, tiny128-gpu, tiny-gpu with lambda_n = 0], [the first
@@ -180,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (weights, grids, recipe.json)")
     p.add_argument("--runs", default="runs/gpu-recipe",
                    help="working folder of the jobs (checkpoints, full logs)")
-    p.add_argument("--minutes", type=float, default=6.0, help="training minutes of each network")
+    p.add_argument("--minutes", type=float, default=5.0, help="training minutes of each network")
     p.add_argument("--inverter-minutes", type=float, default=1.0)
     p.add_argument("--device", default="cuda")
     p.add_argument("--max-steps", type=int, help="N steps of each job instead (tests)")
