@@ -1,6 +1,7 @@
 """Configurations of the GAR: ``tiny`` (64x64, trains on 2 CPU cores), ``tiny-gpu`` (the same
 network, sized for a few minutes on one large GPU), ``tiny128-gpu`` (128x128, one more
-block, for the same GPU) and ``base`` (256x256, documented for a GPU). A config is a plain dataclass; checkpoints store it as a dict.
+block, for the same GPU) and ``base`` (256x256, documented for a GPU). A config is a plain
+dataclass; checkpoints store it as a dict.
 
 Examples
 --------
