@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 from morphable.errors import InputError, one_line_errors
+from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["gar_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
@@ -147,19 +148,13 @@ def run_recipe(stages: list, out, python: str = sys.executable) -> dict:
                                     (out / dest).read_text())
                         report["jobs"][job["name"]] = entry
                         log.flush()
-                        _write_json(out / "recipe.json", report)
+                        write_json(out / "recipe.json", report, indent=2)
                         # now in recipe.json: the folder keeps few files even if the run is
                         # cut off later (the device tool returns 8)
                         for dest in job["outputs"].values():
                             if dest.endswith(".json"):
                                 (out / dest).unlink(missing_ok=True)
     return report
-
-
-def _write_json(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
 
 
 def _environment() -> dict:

@@ -122,11 +122,10 @@ def save_pack(path, arrays: dict, jpeg_quality: int = 90, normal_scale: int = 12
         raise InputError(f"{path}: normal_scale must be in 1..127, got {normal_scale}")
     if normal_resolution is not None and normal_resolution != R:
         try:
-            small = downsample_faces({"image": image, "normals": normals, "mask": mask,
-                                      "landmarks": np.zeros((N, 0, 2))}, int(normal_resolution))
+            normals = _unit_vectors(_block_mean(normals, int(normal_resolution)))
         except InputError as e:
             raise InputError(f"{path}: normal_resolution: {e}") from None
-        normals, mask = small["normals"], small["mask"]
+        mask = _block_mean(mask, int(normal_resolution))
     mask_u8 = np.round(mask * 255).astype(np.uint8)
     q = np.round(np.clip(normals[..., :2], -1, 1) * normal_scale).astype(np.int16)
     # 0 background, 1 facing the camera, 2 facing away (grazing pixels of a perspective view)
@@ -196,6 +195,24 @@ def load_pack(path) -> dict:
     return out
 
 
+def _unit_vectors(a: np.ndarray) -> np.ndarray:
+    """Vectors along the last axis rescaled to unit length, zero where they are (near) zero."""
+    length = np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.where(length > 1e-6, a / np.maximum(length, 1e-12), 0).astype(np.float32)
+
+
+def _block_mean(a, resolution: int) -> np.ndarray:
+    """(N, R, R, ...) -> (N, resolution, resolution, ...) float32 means of f x f blocks,
+    f = R / resolution; InputError unless f is an integer."""
+    a = np.asarray(a, np.float32)
+    R = a.shape[1]
+    if resolution < 1 or R % resolution:
+        raise InputError(f"a pack of {R} px cannot be area-downsampled to {resolution} px "
+                         f"(not an integer factor)")
+    f = R // resolution
+    return a.reshape(a.shape[0], resolution, f, resolution, f, *a.shape[3:]).mean((2, 4))
+
+
 def _enlarge(a: np.ndarray, size: int, unit: bool = False) -> np.ndarray:
     """(N, r, r, ...) -> (N, size, size, ...) bilinearly (pixel centres, edges clamped, as
     ``torch.nn.functional.interpolate(align_corners=False)``); ``unit``: vectors along the
@@ -208,10 +225,7 @@ def _enlarge(a: np.ndarray, size: int, unit: bool = False) -> np.ndarray:
     a = a[:, i0] * (1 - w).reshape(shape) + a[:, i1] * w.reshape(shape)
     shape = (1, 1, -1) + (1,) * (a.ndim - 3)
     a = a[:, :, i0] * (1 - w).reshape(shape) + a[:, :, i1] * w.reshape(shape)
-    if unit:
-        length = np.linalg.norm(a, axis=-1, keepdims=True)
-        a = np.where(length > 1e-6, a / np.maximum(length, 1e-12), 0)
-    return a.astype(np.float32)
+    return _unit_vectors(a) if unit else a.astype(np.float32)
 
 
 def downsample_faces(arrays: dict, resolution: int) -> dict:
@@ -233,22 +247,11 @@ def downsample_faces(arrays: dict, resolution: int) -> dict:
     R = int(np.asarray(arrays["image"]).shape[1])
     if resolution == R:
         return dict(arrays)
-    if resolution < 1 or R % resolution:
-        raise InputError(f"a pack of {R} px cannot be area-downsampled to {resolution} px "
-                         f"(not an integer factor)")
-    f = R // resolution
-
-    def blocks(a):
-        a = np.asarray(a, np.float32)
-        return a.reshape(a.shape[0], resolution, f, resolution, f, *a.shape[3:]).mean((2, 4))
-
-    normals = blocks(arrays["normals"])
-    length = np.linalg.norm(normals, axis=-1, keepdims=True)
     out = dict(arrays)
-    out["image"] = np.round(blocks(arrays["image"])).astype(np.uint8)
-    out["mask"] = blocks(arrays["mask"])
-    out["normals"] = np.where(length > 1e-6, normals / np.maximum(length, 1e-12), 0).astype(np.float32)
-    out["landmarks"] = ((np.asarray(arrays["landmarks"], np.float32) + 0.5) / f - 0.5)
+    out["normals"] = _unit_vectors(_block_mean(arrays["normals"], resolution))
+    out["image"] = np.round(_block_mean(arrays["image"], resolution)).astype(np.uint8)
+    out["mask"] = _block_mean(arrays["mask"], resolution)
+    out["landmarks"] = (np.asarray(arrays["landmarks"], np.float32) + 0.5) / (R // resolution) - 0.5
     return out
 
 

@@ -22,6 +22,7 @@ Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (config, G_ema and D w
 from __future__ import annotations
 
 import argparse
+import collections
 import copy
 import json
 import logging
@@ -388,7 +389,8 @@ class Trainer:
                    dynamic_ncols=True)
         logf = open(self.out / "log.jsonl", "a")
         start = last_save = time.monotonic()
-        train_seconds, window, terms, recent = 0.0, [0.0, 0], None, []
+        train_seconds, window, terms = 0.0, [0.0, 0], None
+        recent = collections.deque(maxlen=max(cfg.print_every, 1))   # for summary.json
         try:
             it = iter(batches)
             while self.step < steps:
@@ -407,7 +409,7 @@ class Trainer:
                 terms["step"], terms["seconds"] = self.step, round(dt, 4)
                 logf.write(json.dumps(terms) + "\n")
                 logf.flush()
-                recent = (recent + [terms])[-max(cfg.print_every, 1):]
+                recent.append(terms)
                 bar.update(1)
                 bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()
                                  if k in ("n", "ldmk", "id", "adv", "d")})
@@ -434,7 +436,7 @@ class Trainer:
                                time.monotonic() - start)
         return self.step
 
-    def write_summary(self, recent: list, steps: int, train_seconds: float,
+    def write_summary(self, recent, steps: int, train_seconds: float,
                       wall_seconds: float) -> Path:
         """``summary.json`` of :meth:`fit` (``recent``: the last steps' loss dicts)."""
         cfg = self.config
@@ -447,9 +449,9 @@ class Trainer:
                    "wall_seconds": round(wall_seconds, 2), "device": _device_name(self.device),
                    "amp": str(self.amp_dtype).replace("torch.", "") if self.amp_dtype else None,
                    "channels_last": self.channels_last, "losses_recent_mean": losses}
-        path = self.out / "summary.json"
-        path.write_text(json.dumps(summary, indent=2))
-        return path
+        from morphable.io.atomic import write_json
+
+        return write_json(self.out / "summary.json", summary, indent=2)
 
 
 def device_from(name) -> torch.device:
