@@ -14,7 +14,7 @@ A pack labels any subset of them (``labelled`` rows; e.g. AFLW's 21 points map t
 Pixels: x right, y down, 0-based pixel centres. A face box is ``(x0, y0, x1, y1)`` px, square.
 
 >>> import numpy as np
->>> mirror_index()[IBUG_ROWS][36] - IBUG_START   # the subject's right eye corner <-> left
+>>> int(mirror_index()[IBUG_ROWS][36]) - IBUG_START   # right outer eye corner <-> left
 45
 """
 from __future__ import annotations
