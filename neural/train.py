@@ -22,12 +22,10 @@ Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (config, G_ema and D w
 from __future__ import annotations
 
 import argparse
-import collections
 import copy
 import json
 import logging
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -43,12 +41,9 @@ from .checkpoint import default_aux_path
 from .config import GARConfig, get_config
 from .gar import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty
+from .training import AMP_DTYPES, TrainingRun, cpu_state, parse_set
 
-__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index", "device_from",
-           "AMP_DTYPES"]
-
-AMP_DTYPES = {"bf16": "bfloat16", "none": None}
-"""``--amp`` choices -> the torch.autocast dtype (None: full precision)."""
+__all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index"]
 
 log = logging.getLogger("neural.train")
 
@@ -112,8 +107,9 @@ def landmark_index(config: GARConfig, L, real: bool) -> np.ndarray:
     return np.flatnonzero(load_model(config.model).landmark_ids >= 0)
 
 
-class Trainer:
-    """The GAR training state: networks, optimisers, data, step.
+class Trainer(TrainingRun):
+    """The GAR training state: networks, optimisers, data, step (the loop, checkpoints and
+    summary are :class:`neural.training.TrainingRun`'s).
 
     Parameters
     ----------
@@ -129,6 +125,9 @@ class Trainer:
     channels_last : networks and images in channels-last memory format
     """
 
+    WEIGHTS_FILE = "generator.pt"
+    REPORT_KEYS = ("n", "ldmk", "id", "adv", "d", "r1", "g_total")
+
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
                  aligned=False, workers: int = 0, device="cpu", data=None, amp=None,
                  channels_last: bool = False):
@@ -140,11 +139,7 @@ class Trainer:
                              "pass one")
         if data is not None and workers:
             raise InputError("--data batches are drawn on the device; drop --workers")
-        if amp is not None and amp not in AMP_DTYPES:
-            raise InputError(f"--amp must be one of {', '.join(AMP_DTYPES)}, got {amp!r}")
-        self.device = device_from(device)
-        if self.device.type == "cuda":
-            torch.backends.cudnn.benchmark = True     # fixed shapes: pick the fastest kernels
+        super().__init__(out, device=device, amp=amp, channels_last=channels_last)
         real = None if data is None else RealFaces(data, "train", device=self.device,
                                                    resolution=config.resolution)
         policy = config.augment
@@ -154,12 +149,9 @@ class Trainer:
             parse_policy(policy)
         except ValueError as e:
             raise InputError(f"--set augment: {e}") from None
-        config = replace(config, augment=policy)
-        self.config, self.out = config, Path(out)
-        self.amp_dtype = getattr(torch, AMP_DTYPES[amp]) if AMP_DTYPES.get(amp) else None
-        self.channels_last = bool(channels_last)
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "samples").mkdir(exist_ok=True)
+        self.config = replace(config, augment=policy)
+        config = self.config
+        (self.out / "samples").mkdir(parents=True, exist_ok=True)
         torch.manual_seed(config.seed)
         self.G = self.layout(Generator(config))
         self.D = self.layout(Discriminator(config))
@@ -181,23 +173,10 @@ class Trainer:
             self.images = AlignedImageFolder(images, config.resolution, aligned=aligned,
                                              model=config.model)
         self.workers = workers
-        self.step = 0
         self.landmark_index = torch.as_tensor(
             landmark_index(config, self.aux["L"], real=real is not None), device=self.device)
 
-    def layout(self, x):
-        """A module or tensor on the device, channels-last with ``channels_last`` (4-D
-        tensors only); otherwise as it is."""
-        x = x.to(self.device)
-        if self.channels_last and (isinstance(x, torch.nn.Module) or x.dim() == 4):
-            x = x.to(memory_format=torch.channels_last)
-        return x
-
     # --- checkpoints --------------------------------------------------------------------
-    @property
-    def checkpoint_path(self) -> Path:
-        return self.out / "checkpoint.pt"
-
     def state_dict(self) -> dict:
         return {"config": self.config.to_dict(), "step": self.step, "G": self.G.state_dict(),
                 "D": self.D.state_dict(), "G_ema": self.G_ema.state_dict(),
@@ -207,29 +186,10 @@ class Trainer:
         """What ``generator.pt`` holds: the config, the step, G_ema (with its mapping network
         M) as ``"G"`` and the discriminator ``"D"`` (to fine-tune or continue adversarially),
         as CPU tensors."""
-        # CPU tensors: a file written on a GPU must load where there is none
-        def cpu(module):
-            return {k: v.detach().cpu() for k, v in module.state_dict().items()}
-
         return {"config": self.config.to_dict(), "step": self.step,
-                "G": cpu(self.G_ema), "D": cpu(self.D)}
+                "G": cpu_state(self.G_ema), "D": cpu_state(self.D)}
 
-    def save(self) -> Path:
-        from morphable.io.atomic import atomic_path
-
-        with atomic_path(self.checkpoint_path) as tmp:
-            torch.save(self.state_dict(), tmp)
-        with atomic_path(self.out / "generator.pt") as tmp:
-            torch.save(self.weights(), tmp)
-        return self.checkpoint_path
-
-    def load(self, path=None) -> int:
-        """Restore from a checkpoint (default ``out/checkpoint.pt``); returns the step."""
-        path = Path(path or self.checkpoint_path)
-        try:
-            ckpt = torch.load(path, map_location=self.device, weights_only=True)
-        except (OSError, RuntimeError, EOFError) as e:
-            raise InputError(f"{path}: cannot read checkpoint ({str(e).splitlines()[0]})") from None
+    def load_state(self, ckpt: dict, path) -> None:
         saved = GARConfig.from_dict(ckpt["config"])
         arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max",
                 "nim_background")
@@ -240,8 +200,12 @@ class Trainer:
                              f"--out folder, or --set {k}={json.dumps(getattr(saved, k))}")
         for key in ("G", "D", "G_ema", "opt_g", "opt_d"):
             getattr(self, key).load_state_dict(ckpt[key])
-        self.step = int(ckpt["step"])
-        return self.step
+
+    def batches(self, start: int):
+        """Batches of steps ``start, start + 1, ...`` (``workers`` processes render them)."""
+        return torch.utils.data.DataLoader(
+            _Batches(self.data, self.config.batch_size, self.config.seed, start), batch_size=None,
+            num_workers=self.workers, persistent_workers=False)
 
     # --- one step -----------------------------------------------------------------------
     def real_images(self, batch, gen=None) -> torch.Tensor:
@@ -263,10 +227,6 @@ class Trainer:
             return batch["image"]
         idx = torch.randint(len(self.images), (B,), generator=gen)
         return torch.stack([self.images[int(i)] for i in idx]).to(self.device)
-
-    def _autocast(self):
-        return torch.autocast(self.device.type, dtype=self.amp_dtype or torch.bfloat16,
-                              enabled=self.amp_dtype is not None)
 
     def _augment(self):
         """The step's DiffAugment (None when off), its draws seeded by (seed, step)."""
@@ -294,7 +254,7 @@ class Trainer:
             lambdas[key] *= k if self.step % k == 0 else 0
         self.G.train()
         self.D.requires_grad_(False)
-        with self._autocast():
+        with self.autocast():
             total, terms, fake = generator_losses(self.G, self.D, self.aux, batch["normals"],
                                                   batch["normals_b"], z1, z2, lambdas,
                                                   landmark_index=self.landmark_index,
@@ -310,7 +270,7 @@ class Trainer:
         real = self.layout(self.real_images(batch, gen))
         r1_step = cfg.r1_gamma > 0 and self.step % cfg.r1_every == 0
         real.requires_grad_(r1_step)
-        with self._autocast():
+        with self.autocast():
             real_logits = self.D(real if augment is None else augment(real)).float()
             fake_logits = self.D(fake if augment is None else augment(fake)).float()
         d_loss = discriminator_loss(real_logits, fake_logits)
@@ -333,8 +293,7 @@ class Trainer:
             for be, b in zip(self.G_ema.buffers(), self.G.buffers()):
                 be.copy_(b)
         terms.update(g_total=float(total.detach()), d=float(d_loss.detach()))
-        if not all(np.isfinite(v) for v in terms.values()):
-            raise MorphableError(f"training diverged at step {self.step}: {terms}")
+        self.finite_or_raise(terms)
         self.step += 1
         return terms
 
@@ -352,137 +311,6 @@ class Trainer:
                 rows += [normal_to_rgb(n[None]), imgs]
         save_grid(torch.cat(rows), path, ncol=n_latents + 1)
         return Path(path)
-
-    # --- the loop -----------------------------------------------------------------------
-    def report(self, terms: dict, steps: int, images: int, seconds: float, out=None) -> str:
-        """One line: step, the loss terms, throughput (images/s: G's normal maps, i.e. batch
-        size x steps, per second of training steps) over ``images`` in ``seconds``; printed
-        to ``out`` (default stdout)."""
-        losses = " ".join(f"{k} {terms[k]:.4f}" for k in ("n", "ldmk", "id", "adv", "d", "r1",
-                                                            "g_total") if k in terms)
-        line = (f"step {self.step}/{steps} {losses} | {images / max(seconds, 1e-9):.1f} img/s "
-                f"({images} images in {seconds:.1f} s)")
-        print(line, file=out or sys.stdout, flush=True)
-        return line
-
-    def fit(self, steps=None, progress: bool = True, max_minutes=None, max_steps=None,
-            checkpoint_minutes=None) -> int:
-        """Train up to ``steps`` (default config.steps) total steps, or until ``max_minutes``
-        have passed or ``max_steps`` steps of this call are done (then a sample grid and a
-        checkpoint are written; rerun to continue); returns the final step. Prints the
-        losses and throughput every ``config.print_every`` steps and at the end.
-
-        ``checkpoint_minutes``: also a checkpoint each time this many minutes have passed
-        since the last one (a run cut off from outside still leaves recent weights).
-        At the end, ``summary.json`` in the output folder: the config, step, images seen in
-        all (step x batch size), this call's training seconds, images/s and wall seconds,
-        the device, and the mean loss terms of the last ``print_every`` steps."""
-        from tqdm import tqdm
-
-        cfg = self.config
-        steps = cfg.steps if steps is None else steps
-        first = self.step
-        batches = torch.utils.data.DataLoader(
-            _Batches(self.data, cfg.batch_size, cfg.seed, self.step), batch_size=None,
-            num_workers=self.workers, persistent_workers=False)
-        bar = tqdm(total=steps, initial=self.step, disable=not progress, unit="step",
-                   dynamic_ncols=True)
-        logf = open(self.out / "log.jsonl", "a")
-        start = last_save = time.monotonic()
-        train_seconds, window, terms = 0.0, [0.0, 0], None
-        recent = collections.deque(maxlen=max(cfg.print_every, 1))   # for summary.json
-        try:
-            it = iter(batches)
-            while self.step < steps:
-                over_time = max_minutes is not None and time.monotonic() - start > 60 * max_minutes
-                if over_time or (max_steps is not None and self.step - first >= max_steps):
-                    log.info("%s reached at step %d", f"time budget of {max_minutes:g} min"
-                             if over_time else f"--max-steps {max_steps}", self.step)
-                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
-                    self.save()
-                    break
-                t0 = time.perf_counter()
-                terms = self.train_step(next(it))
-                dt = time.perf_counter() - t0
-                train_seconds += dt
-                window = [window[0] + dt, window[1] + 1]
-                terms["step"], terms["seconds"] = self.step, round(dt, 4)
-                logf.write(json.dumps(terms) + "\n")
-                logf.flush()
-                recent.append(terms)
-                bar.update(1)
-                bar.set_postfix({k: f"{v:.3f}" for k, v in terms.items()
-                                 if k in ("n", "ldmk", "id", "adv", "d")})
-                if cfg.print_every and self.step % cfg.print_every == 0:
-                    self.report(terms, steps, window[1] * cfg.batch_size, window[0])
-                    window = [0.0, 0]
-                if self.step % cfg.sample_every == 0 or self.step == steps:
-                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
-                due = (checkpoint_minutes is not None
-                       and time.monotonic() - last_save > 60 * checkpoint_minutes)
-                if self.step % cfg.checkpoint_every == 0 or self.step == steps or due:
-                    self.save()
-                    last_save = time.monotonic()
-        except KeyboardInterrupt:
-            self.save()
-            raise
-        finally:
-            bar.close()
-            logf.close()
-        if terms is not None:
-            print("end: ", end="", flush=True)
-            self.report(terms, steps, (self.step - first) * cfg.batch_size, train_seconds)
-            self.write_summary(recent, self.step - first, train_seconds,
-                               time.monotonic() - start)
-        return self.step
-
-    def write_summary(self, recent, steps: int, train_seconds: float,
-                      wall_seconds: float) -> Path:
-        """``summary.json`` of :meth:`fit` (``recent``: the last steps' loss dicts)."""
-        cfg = self.config
-        keys = sorted({k for t in recent for k in t} - {"step", "seconds"})
-        losses = {k: float(np.mean([t[k] for t in recent if k in t])) for k in keys}
-        summary = {"config": cfg.to_dict(), "step": self.step,
-                   "images_seen": self.step * cfg.batch_size, "steps_this_run": steps,
-                   "train_seconds": round(train_seconds, 2),
-                   "images_per_second": round(steps * cfg.batch_size / max(train_seconds, 1e-9), 1),
-                   "wall_seconds": round(wall_seconds, 2), "device": _device_name(self.device),
-                   "amp": str(self.amp_dtype).replace("torch.", "") if self.amp_dtype else None,
-                   "channels_last": self.channels_last, "losses_recent_mean": losses}
-        from morphable.io.atomic import write_json
-
-        return write_json(self.out / "summary.json", summary, indent=2)
-
-
-def device_from(name) -> torch.device:
-    """The torch device ``name`` (e.g. ``"cuda"``) once a tensor could be made on it; an
-    InputError naming it otherwise (no CUDA build, no GPU)."""
-    try:
-        device = torch.device(name)
-        torch.empty(0, device=device)
-    except (RuntimeError, AssertionError) as e:
-        raise InputError(f"--device {name}: {str(e).splitlines()[0]}") from None
-    return device
-
-
-def _device_name(device) -> str:
-    """The device in words: the GPU's name for CUDA devices, else the torch device."""
-    if device.type == "cuda":
-        return torch.cuda.get_device_name(device)
-    return str(device)
-
-
-def _parse_set(items) -> dict:
-    out = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise InputError(f"--set expects key=value, got {item!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -525,7 +353,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     configure(verbosity(args))
     try:
-        overrides = _parse_set(args.set)
+        overrides = parse_set(args.set)
         for key in ("steps", "batch_size", "seed"):
             if getattr(args, key) is not None:
                 overrides[key] = getattr(args, key)

@@ -136,7 +136,7 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
     G's resolution is area-downsampled); then the metrics also hold ``real``
     (:func:`evaluate_real` on the held-out photos, ``eval_steps`` optimiser steps). ``device``: where V trains (G is moved
     there); the returned V is on the CPU, and the draws are the same on any device."""
-    from .train import device_from
+    from .training import device_from
 
     cfg = G.config
     device = device_from(device)
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     from .gar_renderer import GARRenderer
-    from .train import device_from
+    from .training import device_from
 
     device_from(args.device)             # a one-line error before any loading
 
