@@ -229,6 +229,9 @@ def _item(set_name, path, name, key, rows, points, fit_points, scheme, *, person
             "test": bool(test), "rows": np.asarray(rows, np.int64),
             "points": np.asarray(points, np.float64), "fit_points": np.asarray(fit_points, np.float64),
             "scheme": scheme, "convention": int(convention), "own68": own68,
+            # True where the annotation labels hidden points too (AFLW2000-3D's pts68_3d); the
+            # others annotate what is seen
+            "labels_hidden": own68 is not None,
             "yaw_deg": float(yaw_deg)}
 
 

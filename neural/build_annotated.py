@@ -34,7 +34,7 @@ import numpy as np
 
 from morphable.errors import InputError, one_line_errors
 
-__all__ = ["build", "SOURCES", "FORMAT", "pack_report", "main"]
+__all__ = ["build", "run_pack", "SOURCES", "FORMAT", "pack_report", "annotated_face", "parse_sets", "main"]
 
 log = logging.getLogger("neural.build_annotated")
 
@@ -99,8 +99,8 @@ def annotated_face(model, item: dict, source: int, resolution: int):
     points[item["rows"]] = item["points"]
     labelled = np.isfinite(points).all(1)
     visible = labelled.copy()
-    if item["convention"] == 0:
-        # 3D-convention points: hidden ones are labelled too; which are seen, the fit says
+    if item["labels_hidden"]:
+        # hidden points are labelled too: which are seen, the fit says
         lab = project_labels(fit.vertices(0, np.float64), model.triangles, fit.cameras[0],
                              label_schemes(model))
         visible &= np.concatenate([lab["visible478"], lab["visible68"]])
@@ -155,7 +155,6 @@ def build(data, out, sets=("aflw", "london", "300w", "aflw2000"), resolution: in
     """Build (or finish) the annotated pack at ``out``; returns the manifest written to
     ``pack.json`` (``report``: faces per source and split, failures by reason, seconds)."""
     from .annotations import SETS, set_items
-    from .shard_pack import check_out, pending_shards, run_shards, write_manifest
 
     t0 = time.perf_counter()
     data, out = Path(data), Path(out)
@@ -166,22 +165,33 @@ def build(data, out, sets=("aflw", "london", "300w", "aflw2000"), resolution: in
         raise InputError(f"--shard-size must be at least 1, got {shard_size}")
     settings = _settings(sets, resolution, shard_size, model)
     items = [it for s in sets for it in set_items(data, s)]
-    check_out(out, settings)
-    out.mkdir(parents=True, exist_ok=True)
     manifest = {"settings": settings, "kind": "annotated",
-                "sources": [{"name": s, **SOURCES[s]} for s in sets],
-                "items": len(items)}
+                "sources": [{"name": s, **SOURCES[s]} for s in sets], "items": len(items)}
+    return run_pack(out, manifest, len(items), _build_shard, workers, _init_worker,
+                    (model, items, settings), t0)
+
+
+def run_pack(out, manifest: dict, n_items: int, build_shard, workers: int, initializer,
+             initargs, t0: float) -> dict:
+    """Check ``out`` against ``manifest["settings"]``, write the manifest, build the shards of
+    ``n_items`` items still missing (:mod:`neural.shard_pack`), then write the manifest again
+    with its ``report`` (:func:`pack_report`, what this run built, seconds since ``t0``) ->
+    the manifest."""
+    from .shard_pack import check_out, pending_shards, run_shards, write_manifest
+
+    out = Path(out)
+    check_out(out, manifest["settings"])
+    out.mkdir(parents=True, exist_ok=True)
     write_manifest(out, manifest)
-    jobs, skipped = pending_shards(out, len(items), shard_size)
+    jobs, skipped = pending_shards(out, n_items, manifest["settings"]["shard_size"])
     done = failed = 0
-    for k, ((n, f), sec) in enumerate(run_shards(jobs, _build_shard, workers, _init_worker,
-                                                 (model, items, settings))):
+    for k, ((n, f), sec) in enumerate(run_shards(jobs, build_shard, workers, initializer, initargs)):
         done, failed = done + n, failed + f
         log.info("shard %d / %d: %d faces, %d failed, %.1f s", k + 1, len(jobs), n, f, sec)
-    seconds = time.perf_counter() - t0
-    manifest["report"] = {**pack_report(out, sets), "faces_built_now": done, "failed_now": failed,
+    names = [s["name"] for s in manifest["sources"]]
+    manifest["report"] = {**pack_report(out, names), "faces_built_now": done, "failed_now": failed,
                           "shards_built_now": len(jobs), "shards_skipped": skipped,
-                          "seconds": round(seconds, 1), "workers": int(workers)}
+                          "seconds": round(time.perf_counter() - t0, 1), "workers": int(workers)}
     write_manifest(out, manifest)
     return manifest
 

@@ -157,8 +157,7 @@ def build(data, out, per_photo: int = 6, aflw: int = 400, resolution: int = 192,
     """Build (or finish) the profiled pack at ``out`` (``shard_size`` photos a shard); returns
     the manifest written to ``pack.json``."""
     from .annotations import set_items
-    from .build_annotated import SOURCES, pack_report
-    from .shard_pack import check_out, pending_shards, run_shards, write_manifest
+    from .build_annotated import SOURCES, run_pack
 
     t0 = time.perf_counter()
     data, out = Path(data), Path(out)
@@ -171,24 +170,10 @@ def build(data, out, per_photo: int = 6, aflw: int = 400, resolution: int = 192,
     if aflw:
         a = set_items(data, "aflw")
         items += [a[i] for i in np.linspace(0, len(a) - 1, min(aflw, len(a))).round().astype(int)]
-    check_out(out, settings)
-    out.mkdir(parents=True, exist_ok=True)
     manifest = {"settings": settings, "kind": "profiled",
                 "sources": [{"name": s, **SOURCES[s]} for s in SOURCE_NAMES], "photos": len(items)}
-    write_manifest(out, manifest)
-    jobs, skipped = pending_shards(out, len(items), shard_size)
-    done = failed = 0
-    for k, ((n, f), sec) in enumerate(run_shards(jobs, _build_shard, workers, _init_worker,
-                                                 (model, items, settings))):
-        done, failed = done + n, failed + f
-        log.info("shard %d / %d: %d faces, %d failed, %.1f s", k + 1, len(jobs), n, f, sec)
-    seconds = time.perf_counter() - t0
-    manifest["report"] = {**pack_report(out, list(SOURCE_NAMES)), "faces_built_now": done,
-                          "failed_now": failed, "shards_built_now": len(jobs),
-                          "shards_skipped": skipped, "seconds": round(seconds, 1),
-                          "workers": int(workers)}
-    write_manifest(out, manifest)
-    return manifest
+    return run_pack(out, manifest, len(items), _build_shard, workers, _init_worker,
+                    (model, items, settings), t0)
 
 
 def build_parser() -> argparse.ArgumentParser:
