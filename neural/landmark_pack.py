@@ -2,6 +2,7 @@
 their crops with labels, and write a compact copy that travels to a GPU machine.
 
 ``python -m neural.landmark_pack grid PACK --out grid.png [--n 24] [--seed 0]``
+``python -m neural.landmark_pack mapping --data ../shared/data --out mapping.png``
 ``python -m neural.landmark_pack compact PACK --out FILE.npz [--split train,validation]
 [--sources london] [--resolution 128] [--jpeg-quality 85] [--max-mib 20]``
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from morphable.errors import InputError, one_line_errors
 
-__all__ = ["load_pack", "grid", "compact", "main"]
+__all__ = ["load_pack", "grid", "compact", "mapping_picture", "main"]
 
 
 def load_pack(path, splits=None) -> dict:
@@ -162,6 +163,49 @@ def compact(pack, out, splits=None, sources=None, resolution: int | None = None,
             "mib": round(out.stat().st_size / 2 ** 20, 2)}
 
 
+def mapping_picture(data, out, aflw_index: int = 0, london_index: int = 0, cell: int = 480) -> Path:
+    """The left/right check of the mappings (:mod:`neural.annotations`): an AFLW crop and a
+    London photo side by side, each annotated point drawn in the colour of its row's side on
+    SFM's mean face (blue: the image's left, red: its right, white: the midline within 2 mm)
+    and named by its row (``36`` iBUG, ``m468`` face mesh). Returns ``out``."""
+    from PIL import Image, ImageDraw
+
+    import morphable
+    from morphable.detection.images import read_image
+    from morphable.io.atomic import atomic_path
+
+    from .annotations import crop_face, model_points, set_items, to_crop
+    from .landmark_set import IBUG_START
+
+    x = model_points(morphable.load_model("sfm"), morphable.load_model("sfm").mean)[:, 0]
+    panels = []
+    for name, index in (("aflw", aflw_index), ("london", london_index)):
+        item = set_items(data, name)[index]
+        # the points' bounding square grown by 1.6, drawn at ``cell`` px
+        P = item["points"][np.isfinite(item["points"]).all(1)]
+        c, half = (P.min(0) + P.max(0)) / 2, 0.8 * np.ptp(P, axis=0).max()
+        crop, tr = crop_face(read_image(item["path"]), np.r_[c - half, c + half], cell, scale=1.0)
+        img = Image.fromarray(crop)
+        dr = ImageDraw.Draw(img)
+        for row, (px, py) in zip(item["rows"], item["points"]):
+            if not np.isfinite([px, py]).all():
+                continue
+            # SFM's model x grows to the subject's left, the image's right
+            col = (255, 255, 255) if abs(x[row]) < 2 else (80, 140, 255) if x[row] < 0 else (255, 70, 70)
+            u, v = to_crop([px, py], tr)
+            dr.ellipse([u - 3, v - 3, u + 3, v + 3], fill=col)
+            label = str(row - IBUG_START) if row >= IBUG_START else f"m{row}"
+            dr.text((u + 4, v - 5), label, fill=col)
+        panels.append(img)
+    sheet = Image.new("RGB", (sum(p.width for p in panels), max(p.height for p in panels)))
+    for i, p in enumerate(panels):
+        sheet.paste(p, (sum(q.width for q in panels[:i]), 0))
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        sheet.save(tmp, format="PNG")
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m neural.landmark_pack", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -171,6 +215,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--n", type=int, default=24)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--columns", type=int, default=8)
+    m = sub.add_parser("mapping", help="the left/right check of the AFLW and London mappings")
+    m.add_argument("--data", default="../shared/data")
+    m.add_argument("--out", required=True)
+    m.add_argument("--aflw-index", type=int, default=0)
+    m.add_argument("--london-index", type=int, default=0)
     c = sub.add_parser("compact", help="a JPEG-compressed copy (or subset) for a GPU machine")
     c.add_argument("pack")
     c.add_argument("--out", required=True)
@@ -190,6 +239,9 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "grid":
         print(grid(args.pack, args.out, args.n, args.seed, args.columns))
+        return 0
+    if args.command == "mapping":
+        print(mapping_picture(args.data, args.out, args.aflw_index, args.london_index))
         return 0
     splits = None
     if args.split:
