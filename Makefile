@@ -7,7 +7,8 @@ STAMP := $(VENV)/.installed
 OUT := out
 DATA := ../shared/data
 
-.PHONY: install demo test bench clean system-deps gar-data gar-data-128 gar-gpu
+.PHONY: install demo test bench clean system-deps gar-data gar-data-128 gar-gpu landmark-data \
+	landmark-annotated landmark-profiled
 
 install: $(STAMP)
 
@@ -52,6 +53,18 @@ gar-data: $(STAMP)
 gar-data-128: $(STAMP)
 	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real128.npz --resolution 128 \
 		--normal-resolution 64 --jpeg-quality 60 --max-mib 57 --workers 2
+
+# the landmark network's real packs (docs/landmark_packs.md) into the ignored landmark_data/:
+# the annotated photos (~10 min on the 2 cores), then the profiled ones (~30 min); a rerun
+# finishes a killed build. The synthetic faces: `python -m neural.build_synthetic`
+landmark-data: landmark-annotated landmark-profiled
+
+landmark-annotated: $(STAMP)
+	$(BIN)/python -m neural.build_annotated --data $(DATA) --out landmark_data/annotated
+
+landmark-profiled: $(STAMP)
+	$(BIN)/python -m neural.build_profiled --data $(DATA) --out landmark_data/profiled \
+		--per-photo 6 --aflw 300
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -56,6 +56,7 @@ def _settings(n, resolution, seed, model, shard_size, textures, texture_size, ba
 
 def _check(data: Path, out: Path, settings: dict) -> None:
     """Everything that can fail before anything is written."""
+    from .shard_pack import check_out
     from .synthetic import london_photos, w300_photos
 
     s = settings
@@ -74,20 +75,7 @@ def _check(data: Path, out: Path, settings: dict) -> None:
             raise InputError(f"{data}: no London photos under it (faces/frl_london/neutral_front)")
         if s["backgrounds"] == "300w" and not w300_photos(data):
             raise InputError(f"{data}: no 300-W photos with .pts under it (images/300w)")
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: not a folder (the pack is a folder of shards)")
-    parent = next((p for p in out.parents if p.exists()), Path("."))
-    if not parent.is_dir():
-        raise InputError(f"{out}: cannot create the pack folder ({parent} is not a folder)")
-    manifest = out / "pack.json"
-    if manifest.is_file():
-        try:
-            old = json.loads(manifest.read_text())["settings"]
-        except (OSError, ValueError, KeyError):
-            raise InputError(f"{manifest}: unreadable pack manifest") from None
-        if old != settings:
-            diff = ", ".join(f"{k} {old.get(k)} != {v}" for k, v in settings.items() if old.get(k) != v)
-            raise InputError(f"{out}: a pack built with other settings ({diff}); use another --out")
+    check_out(out, settings)
 
 
 def _init_worker(model, resolution, tex_path, backgrounds):
@@ -144,22 +132,12 @@ def shard_faces(engine, seed: int, first: int, count: int) -> dict:
 
 
 def _build_shard(job):
-    from morphable.io.atomic import atomic_path
+    from .shard_pack import write_shard
 
     path, seed, first, count = job
-    t0 = time.perf_counter()
     arrays = shard_faces(_ENGINE["engine"], seed, first, count)
-    with atomic_path(Path(path)) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-    return int(len(arrays["image"])), int(arrays["failed"]), time.perf_counter() - t0
-
-
-def _write_manifest(out: Path, manifest: dict) -> None:
-    from morphable.io.atomic import atomic_path
-
-    with atomic_path(out / "pack.json") as tmp:
-        Path(tmp).write_text(json.dumps(manifest, indent=1) + "\n")
+    write_shard(path, arrays)
+    return int(len(arrays["image"])), int(arrays["failed"])
 
 
 def build(out, n: int, resolution: int = 128, seed: int = 0, model: str = "sfm", workers: int = 1,
@@ -167,6 +145,7 @@ def build(out, n: int, resolution: int = 128, seed: int = 0, model: str = "sfm",
           backgrounds: str = "300w") -> dict:
     """Build (or finish) the pack at ``out``; returns the report written to ``pack.json``
     (``report``: faces, failures, shards built now and skipped, seconds)."""
+    from .shard_pack import pending_shards, run_shards, shard_paths, write_manifest
     from .synthetic import background_bank, london_photos, texture_bank, w300_photos
 
     out, data = Path(out), Path(data)
@@ -191,46 +170,34 @@ def build(out, n: int, resolution: int = 128, seed: int = 0, model: str = "sfm",
     t_tex = time.perf_counter() - t0
     bgs = (background_bank(w300_photos(data), side=resolution, per_photo=1, seed=seed)
            if backgrounds == "300w" else ())
-    _write_manifest(out, manifest)
-    jobs, skipped = [], 0
-    for i, first in enumerate(range(0, n, shard_size)):
-        path = out / f"shard_{i:05d}.npz"
-        if path.is_file():
-            skipped += 1
-            continue
-        jobs.append((str(path), seed, first, min(shard_size, n - first)))
+    write_manifest(out, manifest)
+    pending, skipped = pending_shards(out, n, shard_size)
+    jobs = [(path, seed, first, count) for path, first, count in pending]
     t1 = time.perf_counter()
     done, failed = 0, 0
-    init = (model, resolution, tex_path, bgs)
-    if workers <= 1 or len(jobs) <= 1:
-        _init_worker(*init)
-        results = map(_build_shard, jobs)
-    else:
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(workers, initializer=_init_worker, initargs=init)
-        results = pool.map(_build_shard, jobs)
-    for k, (count, fail, sec) in enumerate(results):
+    results = run_shards(jobs, _build_shard, workers, _init_worker,
+                         (model, resolution, tex_path, bgs))
+    for k, ((count, fail), sec) in enumerate(results):
         done, failed = done + count, failed + fail
         log.info("shard %d / %d: %d faces, %d failed, %.1f s", k + 1, len(jobs), count, fail, sec)
-    if workers > 1 and len(jobs) > 1:
-        pool.shutdown()
     t_render = time.perf_counter() - t1
-    total = sum(int(np.load(p)["image"].shape[0]) for p in sorted(out.glob("shard_*.npz")))
+    total = sum(int(np.load(p)["image"].shape[0]) for p in shard_paths(out))
     manifest["report"] = {"faces": total, "faces_built_now": done, "failed_now": failed,
                           "shards_built_now": len(jobs), "shards_skipped": skipped,
                           "texture_seconds": round(t_tex, 1), "render_seconds": round(t_render, 1),
                           "faces_per_second": round(done / t_render, 2) if done and t_render else None,
                           "workers": int(workers)}
-    _write_manifest(out, manifest)
+    write_manifest(out, manifest)
     return manifest
 
 
 def load_pack(path) -> dict:
     """All shards of a pack folder, concatenated -> dict of arrays (see the module's
     docstring); ``defined68`` (68,) once. InputError when the folder has no pack."""
+    from .shard_pack import shard_paths
+
     path = Path(path)
-    shards = sorted(path.glob("shard_*.npz"))
+    shards = shard_paths(path)
     if not (path / "pack.json").is_file() or not shards:
         raise InputError(f"{path}: no synthetic pack (pack.json and shard_*.npz)")
     parts = [dict(np.load(p, allow_pickle=False)) for p in shards]
