@@ -151,7 +151,7 @@ class LandmarkTrainer(TrainingRun):
             d = ((out["points"] - q) * half).norm(dim=-1)
             err = float((d * w).sum() / w.sum().clamp_min(1))
             sig = float((out["log_sigma"].exp() * w).sum() / w.sum().clamp_min(1))
-        return nll + score, {"nll": float(nll), "score": float(score), "err_px": err,
+        return nll + score, {"nll": float(nll.detach()), "score": float(score.detach()), "err_px": err,
                              "sigma_px": sig}
 
     def train_step(self, batch) -> dict:
