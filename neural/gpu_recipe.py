@@ -2,7 +2,11 @@
 and leaves their weights, logs and one JSON summary in an output folder.
 
 ``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 5
-[--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``).
+[--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``);
+``python -m neural.gpu_recipe landmarks --synthetic PACK [PACK ...] [--annotated PACK]
+[--profiled PACK] --out OUT --minutes 8`` (the landmark network,
+:mod:`neural.train_landmarks` with its ``gpu`` recipe: ``landmarks_gpu.pt``, its
+``validation.jsonl`` as ``validation_landmarks.jsonl``, ``recipe.json``, ``log.txt``).
 
 A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
 command of this package with its own time limit (``--max-minutes``; the runner kills a job
@@ -42,7 +46,7 @@ from morphable.errors import InputError, one_line_errors
 from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["gar_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
+__all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
 
 POLL_SECONDS = 15
 GRACE_MINUTES = 2.0
@@ -87,7 +91,25 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
     return stages
 
 
-RECIPES = {"gar": gar_recipe}
+def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
+                    device: str = "cuda", max_steps=None, batch_size=None, overrides=()) -> list:
+    """The landmark network's one stage: :mod:`neural.train_landmarks` ``--recipe gpu`` on
+    the packs, for ``minutes`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+    packs = (["--synthetic", *synthetic] if synthetic else [])
+    packs += ["--annotated", annotated] if annotated else []
+    packs += ["--profiled", profiled] if profiled else []
+    limit = ["--max-steps", max_steps] if max_steps else []
+    limit += ["--batch-size", batch_size] if batch_size else []
+    folder = Path(run_dir) / "landmarks"
+    return [[_job("landmarks", "neural.train_landmarks", [
+        "--recipe", "gpu", *packs, "--out", folder, "--device", device,
+        "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit,
+        *(["--set", *overrides] if overrides else [])], minutes,
+        {"landmarks.pt": "landmarks_gpu.pt", "summary.json": "summary_landmarks.json",
+         "validation.jsonl": "validation_landmarks.jsonl"}, run_dir)]]
+
+
+RECIPES = {"gar": gar_recipe, "landmarks": landmark_recipe}
 
 
 def _copy_outputs(job, out: Path, seen: dict) -> None:
@@ -173,11 +195,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m neural.gpu_recipe",
                                 description=__doc__.splitlines()[0])
     p.add_argument("recipe", choices=sorted(RECIPES))
-    p.add_argument("--data", required=True, help="the training pack (neural.real_faces)")
+    p.add_argument("--data", help="gar: the training pack (neural.real_faces)")
+    p.add_argument("--synthetic", nargs="*", default=[], metavar="PACK",
+                   help="landmarks: synthetic packs")
+    p.add_argument("--annotated", metavar="PACK", help="landmarks: the annotated pack")
+    p.add_argument("--profiled", metavar="PACK", help="landmarks: the profiled pack")
     p.add_argument("--out", required=True, help="output folder (weights, grids, recipe.json)")
     p.add_argument("--runs", default="runs/gpu-recipe",
                    help="working folder of the jobs (checkpoints, full logs)")
-    p.add_argument("--minutes", type=float, default=5.0, help="training minutes of each network")
+    p.add_argument("--minutes", type=float,
+                   help="training minutes of each network (gar 5, landmarks 8)")
     p.add_argument("--inverter-minutes", type=float, default=1.0)
     p.add_argument("--device", default="cuda")
     p.add_argument("--max-steps", type=int, help="N steps of each job instead (tests)")
@@ -192,12 +219,21 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     configure(verbosity(args))
-    if not Path(args.data).is_file():
-        raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
-    stages = RECIPES[args.recipe](args.data, args.runs, minutes=args.minutes,
-                                  inverter_minutes=args.inverter_minutes, device=args.device,
-                                  max_steps=args.max_steps, batch_size=args.batch_size,
-                                  overrides=args.set)
+    common = dict(device=args.device, max_steps=args.max_steps, batch_size=args.batch_size,
+                  overrides=args.set)
+    if args.recipe == "gar":
+        if args.data is None or not Path(args.data).is_file():
+            raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
+        stages = gar_recipe(args.data, args.runs, minutes=args.minutes or 5.0,
+                            inverter_minutes=args.inverter_minutes, **common)
+    else:
+        packs = [*args.synthetic, args.annotated, args.profiled]
+        missing = next((p for p in packs if p is not None and not Path(p).exists()), None)
+        if missing is not None or not any(packs):
+            raise InputError(f"{missing or '--synthetic'}: landmark pack not found (build the "
+                             "packs with `make landmark-data` and neural.build_synthetic)")
+        stages = landmark_recipe(args.runs, args.synthetic, args.annotated, args.profiled,
+                                 minutes=args.minutes or 8.0, **common)
     report = run_recipe(stages, args.out)
     failed = [k for k, v in report["jobs"].items() if v["returncode"] != 0]
     print(json.dumps({k: {"returncode": v["returncode"], "wall_seconds": v["wall_seconds"]}

@@ -195,6 +195,20 @@ def test_script_gpu_recipe_on_cpu_and_bad_packs(tmp_path, capsys):
     assert summary["config"]["lr"] == pytest.approx(2 * LandmarkConfig().lr)   # gpu: lr x 2
     assert summary["amp"] == "bfloat16" and summary["images_per_second"] > 0
     assert load_landmark_net(tmp_path / "gpu" / "landmarks.pt").meta["packs"]["synthetic"]
+    # the same through the GPU recipe runner: what comes back from the device machine
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "neural.gpu_recipe", "landmarks", "--synthetic",
+                          str(tmp_path / "syn"), "--out", str(tmp_path / "back"), "--runs",
+                          str(tmp_path / "runs"), "--device", "cpu", "--max-steps", "1",
+                          "--batch-size", "4", "--set", *args[args.index("--set") + 1:-2]],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr + (tmp_path / "back" / "log.txt").read_text()[-2000:]
+    assert {p.name for p in (tmp_path / "back").iterdir()} == {
+        "landmarks_gpu.pt", "validation_landmarks.jsonl", "recipe.json", "log.txt"}
+    job = json.loads((tmp_path / "back" / "recipe.json").read_text())["jobs"]["landmarks"]
+    assert job["returncode"] == 0 and job["summary"]["step"] == 1
     capsys.readouterr()
     rc = main(["--out", str(tmp_path / "x"), "--annotated", str(tmp_path / "nowhere"), "-q"])
     err = capsys.readouterr().err
