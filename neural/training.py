@@ -23,7 +23,9 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -76,6 +78,19 @@ def parse_set(items) -> dict:
         except json.JSONDecodeError:
             out[key] = value
     return out
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _stop_on_sigterm():
+    """SIGTERM -> KeyboardInterrupt while the loop runs, so that ``kill`` (and a background
+    run, where Python leaves SIGINT ignored) stops with a checkpoint like Ctrl-C; returns the
+    previous handler (None off the main thread, where signals cannot be caught)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _interrupt)
 
 
 class TrainingRun:
@@ -190,6 +205,7 @@ class TrainingRun:
 
         ``checkpoint_minutes``: also a checkpoint each time this many minutes have passed
         since the last one (a run cut off from outside still leaves recent weights).
+        Ctrl-C or SIGTERM: a checkpoint, then KeyboardInterrupt.
         At the end, ``summary.json`` in the output folder: the config, step, images seen in
         all (step x batch size), this call's training seconds, images/s and wall seconds,
         the device, and the mean loss terms of the last ``print_every`` steps."""
@@ -205,6 +221,7 @@ class TrainingRun:
         start = last_save = time.monotonic()
         train_seconds, window, terms = 0.0, [0.0, 0], None
         recent = collections.deque(maxlen=max(cfg.print_every, 1))   # for summary.json
+        previous = _stop_on_sigterm()
         try:
             it = iter(self.batches(self.step))
             while self.step < steps:
@@ -242,6 +259,8 @@ class TrainingRun:
         finally:
             bar.close()
             logf.close()
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
         if terms is not None:
             print("end: ", end="", flush=True)
             self.report(terms, steps, (self.step - first) * cfg.batch_size, train_seconds)
