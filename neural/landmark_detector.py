@@ -12,8 +12,9 @@ A face in a photo, step by step (pixels x right, y down, 0-based pixel centres):
    mediapipe's full-range detector when installed, else dlib's HOG, and when it finds no face
    the network's own face score over a multi-scale grid of windows (:func:`windows`), so
    that faces the face detectors miss at large poses are still found;
-2. a first pass on the crop of that framing, then (``passes=2``) a second on the crop
-   re-centred from the first pass's 68 points through ``face_box``;
+2. a first pass on the crop of that framing, then (``passes=2``; :data:`PASSES` says why
+   not by default) a second on the crop re-centred from the first pass's 68 points through
+   ``face_box``;
 3. points and σ back to the photo's pixels (σ x framing side / 128).
 
 A box whose network score stays below :data:`FACE_THRESHOLD` is not a face: the next
@@ -42,7 +43,7 @@ from .checkpoint import WEIGHTS_DIR
 from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, face_box
 
 __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THRESHOLD",
-           "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "weights_path", "framing_box",
+           "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "PASSES", "weights_path", "framing_box", "extent_box",
            "windows", "crops", "NetworkDetector"]
 
 WEIGHTS_ENV = "MORPHABLE_LANDMARK_WEIGHTS"
@@ -73,6 +74,12 @@ WINDOW_STEP = 0.35
 """Distance of neighbouring windows, in units of their side."""
 MAX_CANDIDATES = 3
 """Face-detector boxes tried, largest first, before the windows."""
+PASSES = 1
+"""Passes by default. The second pass (the crop re-centred on the first pass's 68 points)
+does not pay yet: AFLW2000-3D photos 0-99 (research use only), the weights of runs/ldmk_cpu
+at step 1000, given the 68 points' extent as the box, NME by sqrt(w h) of the ground truth's
+box per |yaw| bin 0-30 / 30-60 / 60-90: one pass 7.58 / 9.68 / 14.05 % (mean 10.44), two
+passes 7.61 / 9.99 / 16.63 % (mean 11.41); command in docs/detection.md."""
 BATCH = 64
 
 
@@ -97,6 +104,18 @@ def framing_box(box, face_detector: str) -> np.ndarray:
     cy = (b[..., 1] + b[..., 3]) / 2 + dy * side
     half = scale * side / 2
     return np.stack([cx - half, cy - half, cx + half, cy + half], axis=-1)
+
+
+def extent_box(framing) -> np.ndarray:
+    """The inverse of ``framing_box(., "box")``: framing boxes (..., 4) px -> the square
+    68-point extents (..., 4) px that :func:`neural.landmark_set.face_box` frames so."""
+    from .landmark_set import BOX_LIFT, BOX_SCALE
+
+    f = np.asarray(framing, dtype=np.float64)
+    size = ((f[..., 2] - f[..., 0]) + (f[..., 3] - f[..., 1])) / 2 / BOX_SCALE
+    cx = (f[..., 0] + f[..., 2]) / 2
+    cy = (f[..., 1] + f[..., 3]) / 2 + BOX_LIFT * size
+    return np.stack([cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2], axis=-1)
 
 
 def windows(width: int, height: int, sides=WINDOW_SIDES, step: float = WINDOW_STEP) -> np.ndarray:
@@ -162,6 +181,7 @@ class NetworkDetector:
     weights : path of a :func:`neural.landmark_net.save_landmark_net` file (or a training
         checkpoint), or None: :func:`weights_path`
     passes : 1 or 2: the second pass re-centres the crop on the first pass's 68 points
+        (default :data:`PASSES`)
 
     InputError (one line naming the file and how to get the weights) when the file is missing
     or not landmark-network weights.
@@ -178,9 +198,10 @@ class NetworkDetector:
         path = weights_path()
         return None if path.is_file() else f"{path}: no landmark network weights"
 
-    def __init__(self, weights=None, passes: int = 2):
+    def __init__(self, weights=None, passes: int = None):
         from .landmark_net import load_landmark_net
 
+        passes = PASSES if passes is None else passes
         if passes not in (1, 2):
             raise InputError(f"passes: 1 or 2, got {passes}")
         path = weights_path(weights)
@@ -270,12 +291,14 @@ class NetworkDetector:
         return {**self.refine(image, cand[best:best + 1]), "window": cand[best]}
 
     def detect_faces(self, image: np.ndarray, face_detector: str = "auto") -> np.ndarray:
-        """(F, 4) px face boxes: the face detector's, largest first (``"auto"``: the windows'
-        best one, as the framing's 68-point extent, when it finds none)."""
+        """(F, 4) px face boxes as :meth:`detect` takes them (``box=``: the 68 points' extent
+        that the network's framing frames): the face detector's, largest first, framed by
+        :data:`BOX_FRAMING`; with ``"auto"`` and ``"windows"``, the network's window search's
+        face when the face detector finds none."""
         kind = self.face_detector_for(face_detector)
         boxes = self.detector_boxes(image, kind) if kind not in (None, "windows") else np.zeros((0, 4))
         if len(boxes) or face_detector not in ("auto", "windows"):
-            return boxes
+            return extent_box(framing_box(boxes, kind)) if len(boxes) else boxes
         found = self.search(image)
         if not len(found["probability"]) or found["probability"][0] < FACE_THRESHOLD:
             return np.zeros((0, 4))

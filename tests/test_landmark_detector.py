@@ -280,3 +280,27 @@ def test_bad_input_rows(call, message, nets, tmp_path, monkeypatch):
 
 def test_bad_input_table_has_the_rows():
     assert len(ROWS) >= 8
+
+
+def test_face_boxes_given_back_frame_the_same_crop(nets, monkeypatch):
+    """detect_faces gives boxes in the convention detect(box=) reads: the framing comes back."""
+    from neural import landmark_detector as ld
+
+    det = ld.NetworkDetector(nets["face"])
+    raw = np.array([[100.0, 60.0, 200.0, 170.0]])
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes", staticmethod(lambda image, kind: raw))
+    faces = det.detect_faces(noise(), face_detector="full-range")
+    np.testing.assert_allclose(ld.framing_box(faces, "box"), ld.framing_box(raw, "full-range"), atol=1e-9)
+
+
+def test_landmark_noise_gives_the_fitter_each_frames_sigma():
+    from morphable.detection import Detection, landmark_noise
+
+    p478, p68 = np.zeros((478, 2)), np.zeros((68, 2))
+    net = Detection(p478, np.full(478, 2.0), p68, np.full(68, 3.0), "facemesh478", "3d", "network box")
+    mesh = Detection(p478, None, p68, None, "facemesh478", "3d", "facemesh auto")
+    assert landmark_noise([None, mesh], 1.5) == 1.5 and landmark_noise([net], "auto") == "auto"
+    s = landmark_noise([net, None, mesh], 1.5)
+    assert s.shape == (3, 478) and (s[0] == 2.0).all() and (s[1:] == 1.5).all()
+    s68 = landmark_noise([net, None], 1.0, n_points=68)
+    assert s68.shape == (2, 68) and (s68[0] == 3.0).all() and (s68[1] == 1.0).all()

@@ -40,10 +40,10 @@ from ..errors import InputError
 from . import plugins
 from .boxes import check_box
 from .images import as_image, image_size, read_image
-from .result import Detection
+from .result import Detection, landmark_noise
 
 __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
-           "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection",
+           "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
            "read_image", "image_size", "as_image"]
 
 LANDMARK_DETECTORS = ("auto", "facemesh", "dlib", "network")

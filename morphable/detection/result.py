@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Detection", "SCHEMES", "CONVENTIONS"]
+__all__ = ["Detection", "SCHEMES", "CONVENTIONS", "landmark_noise"]
 
 SCHEMES = {"facemesh478": 478, "ibug68": 68}
 """The point sets a detection's ``points`` come in, and their row counts."""
@@ -63,3 +63,35 @@ class Detection:
             if name.endswith("sigma_px") and not (a > 0).all():
                 raise InputError(f"{self.detector}: {name} must be > 0")
             object.__setattr__(self, name, a)
+
+
+def landmark_noise(detections, default_px=1.0, n_points: int = 478):
+    """The ``landmark_std_px`` of :func:`morphable.fitting.fit_landmarks` for frames some of
+    which a detector with σ found.
+
+    Parameters
+    ----------
+    detections : list of :class:`Detection` or None, one per frame (None: an annotated frame)
+    default_px : float or "auto": the noise of frames without σ (the ``--landmark-std``)
+    n_points : 478 or 68: the rows the fit is given (68 when frames of the face mesh's 478
+        and of dlib's 68 are mixed and the fit takes the iBUG points)
+
+    Returns
+    -------
+    ``default_px`` itself when no frame has σ or ``default_px`` is "auto" (its estimate is one
+    noise per fit: an explicit choice wins); else (N, n_points) float64 px: each frame's σ
+    (its face-mesh rows or its iBUG rows), ``default_px`` for the frames without.
+    """
+    if default_px == "auto" or all(d is None or d.sigma_px is None for d in detections):
+        return default_px
+    if n_points not in (68, 478):
+        raise InputError(f"landmark noise: n_points must be 68 or 478, got {n_points}")
+    out = np.full((len(detections), n_points), float(default_px))
+    for i, d in enumerate(detections):
+        if d is None or d.sigma_px is None:
+            continue
+        sigma = d.sigma_px if n_points == len(d.sigma_px) else d.ibug68_sigma_px
+        if sigma is None or len(sigma) != n_points:
+            raise InputError(f"{d.detector}: σ for {len(d.sigma_px)} points, the fit takes {n_points}")
+        out[i] = sigma
+    return out
