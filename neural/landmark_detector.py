@@ -76,10 +76,11 @@ MAX_CANDIDATES = 3
 """Face-detector boxes tried, largest first, before the windows."""
 PASSES = 1
 """Passes by default. The second pass (the crop re-centred on the first pass's 68 points)
-does not pay yet: AFLW2000-3D photos 0-99 (research use only), the weights of runs/ldmk_cpu
-at step 1000, given the 68 points' extent as the box, NME by sqrt(w h) of the ground truth's
-box per |yaw| bin 0-30 / 30-60 / 60-90: one pass 7.58 / 9.68 / 14.05 % (mean 10.44), two
-passes 7.61 / 9.99 / 16.63 % (mean 11.41); command in docs/detection.md."""
+does not pay yet: AFLW2000-3D photos 0-99 (research use only), given the 68 points' extent
+as the box, mean NME over the |yaw| bins 8.13 % with one pass and 8.36 % with two (weights
+of runs/ldmk_cpu at step 2000; at step 1000 10.44 and 11.41 %):
+``python -m evaluation.bench_network --n 100 --weights runs/ldmk_cpu/landmarks.pt``
+(table in docs/detection.md)."""
 BATCH = 64
 
 
