@@ -6,12 +6,13 @@ A face in a photo, step by step (pixels x right, y down, 0-based pixel centres):
 
 1. a face box: given (``box``: the face's box, its 68 points' extent, as dlib's and the face
    mesh's boxes roughly are, or a video's previous :attr:`Detection.box`), or a face
-   detector's (mediapipe's full-range or short-range, dlib's HOG or CNN), each mapped to the
+   detector's (mediapipe's short-range or full-range, dlib's HOG or CNN), each mapped to the
    network's framing (:func:`neural.landmark_set.face_box`, a square 1.4 x the 68 points'
    extent, lifted) by its measured :data:`BOX_FRAMING`; with ``face_detector="auto"``,
-   mediapipe's full-range detector when installed, else dlib's HOG, and when it finds no face
-   the network's own face score over a multi-scale grid of windows (:func:`windows`), so
-   that faces the face detectors miss at large poses are still found;
+   mediapipe's short-range then full-range detector when installed, else dlib's HOG
+   (:meth:`NetworkDetector.face_detectors_for`), and when they find no face the network's
+   own face score over a multi-scale grid of windows (:func:`windows`), so that faces the
+   face detectors miss at large poses are still found;
 2. a first pass on the crop of that framing, then (``passes=2``; :data:`PASSES` says why
    not by default) a second on the crop re-centred from the first pass's 68 points through
    ``face_box``;
@@ -261,16 +262,21 @@ class NetworkDetector:
 
     # --- faces ----------------------------------------------------------------------------------
     @staticmethod
-    def face_detector_for(face_detector: str) -> str | None:
-        """The face detector ``"auto"`` runs (mediapipe's full-range, else dlib's HOG, else None:
-        the windows only); others as named."""
+    def face_detectors_for(face_detector: str) -> tuple:
+        """The face detectors ``face_detector`` runs, in order: ``"auto"``, mediapipe's
+        short-range then full-range detector where mediapipe is installed (the short-range one
+        first: on AFLW2000-3D photos 100-299 it found all 200 faces, the full-range one 183, and
+        the full-range one's largest box was another region on 5 of the first 100), else dlib's
+        HOG, else none (the windows only); ``"windows"`` none; others themselves."""
+        if face_detector == "windows":
+            return ()
         if face_detector != "auto":
-            return face_detector
+            return (face_detector,)
         if importlib.util.find_spec("mediapipe") is not None:
-            return "full-range"
+            return ("short-range", "full-range")
         if importlib.util.find_spec("dlib") is not None:
-            return "hog"
-        return None
+            return ("hog",)
+        return ()
 
     @staticmethod
     def detector_boxes(image: np.ndarray, face_detector: str) -> np.ndarray:
@@ -293,13 +299,15 @@ class NetworkDetector:
 
     def detect_faces(self, image: np.ndarray, face_detector: str = "auto") -> np.ndarray:
         """(F, 4) px face boxes as :meth:`detect` takes them (``box=``: the 68 points' extent
-        that the network's framing frames): the face detector's, largest first, framed by
-        :data:`BOX_FRAMING`; with ``"auto"`` and ``"windows"``, the network's window search's
-        face when the face detector finds none."""
-        kind = self.face_detector_for(face_detector)
-        boxes = self.detector_boxes(image, kind) if kind not in (None, "windows") else np.zeros((0, 4))
-        if len(boxes) or face_detector not in ("auto", "windows"):
-            return extent_box(framing_box(boxes, kind)) if len(boxes) else boxes
+        that the network's framing frames), largest first: those of the first face detector of
+        :meth:`face_detectors_for` that finds any, framed by :data:`BOX_FRAMING`; with
+        ``"auto"`` and ``"windows"``, the network's window search's face when none does."""
+        for kind in self.face_detectors_for(face_detector):
+            boxes = self.detector_boxes(image, kind)
+            if len(boxes):
+                return extent_box(framing_box(boxes, kind))
+        if face_detector not in ("auto", "windows"):
+            return np.zeros((0, 4))
         found = self.search(image)
         if not len(found["probability"]) or found["probability"][0] < FACE_THRESHOLD:
             return np.zeros((0, 4))
@@ -317,22 +325,19 @@ class NetworkDetector:
             _check_box(box, W, H, name)
             found = self.refine(image, framing_box(box, "box")[None])
             return self._detection(found, 0, "box")
-        kind = self.face_detector_for(face_detector)
         tried = []
-        if kind not in (None, "windows"):
+        for kind in self.face_detectors_for(face_detector):
             boxes = self.detector_boxes(image, kind)[:MAX_CANDIDATES]
             boxes = boxes[np.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]) >= MIN_BOX_PX]
-            if len(boxes):
-                found = self.refine(image, framing_box(boxes, kind))
-                best = int(np.argmax(found["probability"]))
-                if found["probability"][best] >= FACE_THRESHOLD:
-                    # the largest box the network agrees is a face
-                    first = int(np.flatnonzero(found["probability"] >= FACE_THRESHOLD)[0])
-                    return self._detection(found, first, kind)
-                tried.append(f"{kind} found {len(boxes)} box{'es' * (len(boxes) > 1)}, "
-                             f"best face score {found['probability'][best]:.2f}")
-            else:
+            if not len(boxes):
                 tried.append(f"{kind} found none")
+                continue
+            found = self.refine(image, framing_box(boxes, kind))
+            faces = np.flatnonzero(found["probability"] >= FACE_THRESHOLD)
+            if len(faces):
+                return self._detection(found, int(faces[0]), kind)   # the largest face
+            tried.append(f"{kind} found {len(boxes)} box{'es' * (len(boxes) > 1)}, best face "
+                         f"score {found['probability'].max():.2f}")
         if face_detector in ("auto", "windows"):
             found = self.search(image)
             if len(found["probability"]) and found["probability"][0] >= FACE_THRESHOLD:

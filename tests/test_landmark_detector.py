@@ -215,10 +215,16 @@ def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypa
     assert seen == ["hog"] and d.detector == "network hog" and d.score > 0.99
     # auto without a face detector's box: the network's own windows
     monkeypatch.setattr(ld.NetworkDetector, "detector_boxes", staticmethod(lambda image, kind: np.zeros((0, 4))))
-    monkeypatch.setattr(ld.NetworkDetector, "face_detector_for", staticmethod(lambda f: "full-range" if f == "auto" else f))
+    monkeypatch.setattr(ld.NetworkDetector, "face_detectors_for",
+                        staticmethod(lambda f: ("short-range", "full-range") if f == "auto" else (f,)))
     assert det.detect(img).detector == "network windows"
     with pytest.raises(FitError, match="no face found by the landmark network \\(full-range found none"):
         det.detect(img, face_detector="full-range")
+    # the next face detector is asked when the first finds none
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes",
+                        staticmethod(lambda image, kind: boxes if kind == "full-range" else np.zeros((0, 4))))
+    assert det.detect(img).detector == "network full-range"
+    np.testing.assert_allclose(det.detect_faces(img), ld.extent_box(ld.framing_box(boxes, "full-range")))
 
 
 def test_windows_cover_the_photo():
