@@ -40,7 +40,6 @@ from morphable.detection import FACE_DETECTORS as ALL_FACE_DETECTORS
 from morphable.detection.result import Detection
 from morphable.errors import FitError, InputError
 
-from .checkpoint import WEIGHTS_DIR
 from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, face_box
 
 __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THRESHOLD",
@@ -48,7 +47,9 @@ __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THR
            "windows", "crops", "NetworkDetector"]
 
 WEIGHTS_ENV = "MORPHABLE_LANDMARK_WEIGHTS"
-WEIGHTS_FILE = WEIGHTS_DIR / "landmarks.pt"
+# neural.checkpoint.WEIGHTS_DIR's file, named without importing that module: it imports torch,
+# and "auto" asks unavailable() on every detection command
+WEIGHTS_FILE = Path(__file__).resolve().parent / "weights" / "landmarks.pt"
 GET_WEIGHTS = (f"the weights are committed as neural/weights/{WEIGHTS_FILE.name} (see "
                "neural/weights/MODEL_CARD.md), or train them with python -m neural.train_landmarks "
                f"--out DIR and set ${WEIGHTS_ENV}=DIR/landmarks.pt")

@@ -94,10 +94,14 @@ def test_import_and_discovery_pull_no_torch():
     code = ("import sys, morphable, morphable.detection as d; d.plugins.installed(); "
             "d.resolve_detectors('dlib'); "
             "print(sorted(m for m in ('torch', 'neural', 'neural.landmark_detector') if m in sys.modules))")
+    # "auto" asks the installed plugin whether it can run: its module, not torch
+    code += ("; from importlib import metadata; ep = metadata.EntryPoint('network', "
+             f"'{ENTRY}', d.plugins.GROUP); d.plugins.metadata.entry_points = lambda **kw: [ep]; "
+             "d.resolve_detectors(); print('torch' in sys.modules, 'neural.landmark_detector' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]"
+    assert out.stdout.split("\n")[:2] == ["[]", "False True"]
 
 
 # --- the "auto" choice -----------------------------------------------------------------------
