@@ -9,7 +9,9 @@ Methods, each run on every photo of a set:
   (:func:`morphable.refinement.refine`, ``--steps`` Adam steps; the GAR's weights from
   ``--gar-weights`` or the committed ones), scored the same way — whether photometric
   refinement moves the 68 points towards or away from the ground truth;
-- ``ours-dlib``, ``ours-facemesh``: our fit (SFM, one frame) to either detector's points; its
+- ``network``: the landmark network's own 68 rows (``landmark_detector="network"``, its
+  weights from ``$MORPHABLE_LANDMARK_WEIGHTS`` or the committed ones; by name only);
+- ``ours-dlib``, ``ours-facemesh``, ``ours-network``: our fit (SFM, one frame) to either detector's points; its
   projected iBUG-68 landmarks (``FitResult.landmarks_68_px``) are what is scored, so that the
   fit must place the 68 points itself: AFLW2000-3D's ground truth is projected 3D landmarks
   (a hidden jaw point is where the jaw is, behind the cheek), so there the fit's jaw points stay
@@ -51,11 +53,14 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
+__all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
            "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
            "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
+NETWORK_METHODS = ("network", "ours-network")
+"""The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
+:mod:`neural.landmark_detector`; chosen by name, not run by default)."""
 
 
 def refined_methods(methods) -> tuple:
@@ -337,7 +342,7 @@ def format_tables(report: dict) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--set", nargs="+", choices=("aflw2000", "300w"), default=["aflw2000"])
-    p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS + NETWORK_METHODS + REFINED, default=list(METHODS))
     add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="photos per set (default all)")
     p.add_argument("--model", default="sfm")

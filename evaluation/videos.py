@@ -335,7 +335,7 @@ def write_rendered_video(scan, video: Video, path, seed: int = 0, fps: float = 3
 
 def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
     """Landmarks of the largest face (:func:`morphable.detection.detect_landmarks`) -> (L, 2)
-    px: the face mesh's 478 or dlib's 68; all NaN when no face is found, so that the frame is
+    px: the face mesh's (or the landmark network's) 478 or dlib's 68; all NaN when no face is found, so that the frame is
     simply not used.
 
     Parameters
@@ -344,11 +344,10 @@ def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str 
     landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
     """
     from morphable.detection import detect_landmarks as detect
-    from morphable.detection import resolve_detectors
+    from morphable.detection import landmark_count
     from morphable.errors import FitError
 
     try:
         return detect(image, landmark_detector=landmark_detector, face_detector=face_detector)
     except FitError:
-        n = 478 if resolve_detectors(landmark_detector, face_detector)[0] == "facemesh" else 68
-        return np.full((n, 2), np.nan)
+        return np.full((landmark_count(landmark_detector, face_detector), 2), np.nan)

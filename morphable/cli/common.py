@@ -29,12 +29,16 @@ def add_detector_arguments(parser) -> None:
     from ..detection import FACE_DETECTORS, LANDMARK_DETECTORS
 
     parser.add_argument("--landmark-detector", choices=LANDMARK_DETECTORS, default="auto",
-                        help="landmarks for images without landmark files: facemesh (mediapipe, 478 "
-                             "points), dlib (68), auto: facemesh when installed (default)")
+                        help="landmarks for images without landmark files: network (the neural "
+                             "plugin's landmark network, 478 + 68 points with a sigma each), "
+                             "facemesh (mediapipe, 478 points), dlib (68); auto: the network when "
+                             "its weights are present, else facemesh when installed, else dlib "
+                             "(default)")
     faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
     parser.add_argument("--face-detector", choices=tuple(faces), default="auto",
                         help="the landmark detector's face detector: short-range or full-range "
-                             "(facemesh), hog or cnn (dlib); default auto: its own default")
+                             "(facemesh), hog or cnn (dlib), any of these or windows (network: "
+                             "its own face score over a window grid); default auto: its own default")
 
 
 def add_loss_weight_argument(parser, flag: str = "--loss-weight", what: str = "refinement") -> None:

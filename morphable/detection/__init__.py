@@ -1,16 +1,27 @@
-"""Face and landmark detection in photos: two landmark detectors, each with its face detectors.
+"""Face and landmark detection in photos: landmark detectors, each with its face detectors.
 
 - ``landmark_detector="facemesh"`` (:mod:`.facemesh`): mediapipe's face mesh, 478 points;
-  face detectors ``"short-range"`` / ``"full-range"`` (mediapipe's); the default when
-  mediapipe is installed;
+  face detectors ``"short-range"`` / ``"full-range"`` (mediapipe's);
 - ``landmark_detector="dlib"`` (:mod:`.dlib_detector`): dlib's 68 iBUG points; face
   detectors ``"hog"`` / ``"cnn"``;
-- ``"auto"``: the face mesh when mediapipe can be imported, else dlib; ``face_detector="auto"``:
-  the landmark detector's default (the face mesh's whole-photo search with the full-range
+- ``landmark_detector="network"``: the landmark network of the neural plugin (546 surface
+  points, a σ each, a face score), found through the entry-point group
+  ``morphable.landmark_detectors`` (:mod:`.plugins`; any other plugin registered there is
+  taken by its name too); face detectors ``"short-range"`` / ``"full-range"`` / ``"hog"`` /
+  ``"cnn"`` (whichever is installed), ``"windows"`` (the network's own face score over a grid
+  of candidate windows), ``"auto"`` (mediapipe's full-range, else dlib's HOG, then the
+  windows when it finds no face);
+- ``"auto"``: the network when its plugin is installed and can run (torch and its weights),
+  else the face mesh when mediapipe can be imported, else dlib; ``face_detector="auto"``: the
+  landmark detector's default (the face mesh's whole-photo search with the full-range
   fallback, dlib's HOG).
 
-:mod:`.images` reads photos (grayscale, RGBA, 16-bit, EXIF-rotated -> upright RGB). Nothing
-here imports mediapipe, cv2 or dlib until a detection runs.
+:func:`detect` gives a :class:`~.result.Detection` (points, σ per point where the detector
+predicts one, the 68 iBUG points, the convention, the face score and box);
+:func:`detect_landmarks` and :func:`detect_ibug68` its points alone. :mod:`.images` reads
+photos (grayscale, RGBA, 16-bit, EXIF-rotated -> upright RGB). Nothing here imports
+mediapipe, cv2, dlib, torch or a plugin until a detection runs (or ``"auto"`` asks a plugin
+whether it can run).
 
 >>> from morphable.detection import detect_landmarks                  # doctest: +SKIP
 >>> detect_landmarks("image_0010.png").shape                          # doctest: +SKIP
@@ -26,14 +37,22 @@ import importlib.util
 import numpy as np
 
 from ..errors import InputError
+from . import plugins
+from .boxes import check_box
 from .images import as_image, image_size, read_image
+from .result import Detection, landmark_noise
 
-__all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect_landmarks",
-           "detect_ibug68", "detect_faces", "describe", "read_image", "image_size", "as_image"]
+__all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
+           "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
+           "read_image", "image_size", "as_image"]
 
-LANDMARK_DETECTORS = ("auto", "facemesh", "dlib")
-FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("auto", "hog", "cnn")}
-"""The face detectors each landmark detector takes ("auto": its default)."""
+LANDMARK_DETECTORS = ("auto", "facemesh", "dlib", "network")
+"""The landmark detectors by name ("network": the neural plugin's, when installed)."""
+FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("auto", "hog", "cnn"),
+                  "network": ("auto", "short-range", "full-range", "hog", "cnn", "windows")}
+"""The face detectors each landmark detector takes ("auto": its default). A plugin other than
+the network lists its own (its class's ``FACE_DETECTORS``)."""
+BUILTIN = ("facemesh", "dlib")
 
 
 @functools.lru_cache(maxsize=None)
@@ -41,26 +60,86 @@ def _facemesh_installed() -> bool:
     return importlib.util.find_spec("mediapipe") is not None
 
 
+@functools.lru_cache(maxsize=None)
+def _network_ready() -> bool:
+    """Whether the network plugin is installed and says it can run (torch, weights); its module
+    is imported for that, not torch."""
+    if "network" not in plugins.entry_points():
+        return False
+    try:
+        return plugins.detector_class("network").unavailable() is None
+    except InputError:
+        return False
+
+
+def _face_detectors(landmark_detector: str) -> tuple:
+    if landmark_detector in FACE_DETECTORS:
+        return FACE_DETECTORS[landmark_detector]
+    return tuple(plugins.detector_class(landmark_detector).FACE_DETECTORS)
+
+
 def resolve_detectors(landmark_detector: str = "auto", face_detector: str = "auto") -> tuple[str, str]:
     """The choice as given -> ``(landmark detector, face detector)`` as run: "auto" landmark
-    detector resolved to "facemesh" or "dlib"; dlib's "auto" face detector to "hog" (the face
-    mesh keeps "auto", its own strategy). InputError for an unknown name or a face detector
-    of the other landmark detector."""
-    if landmark_detector not in LANDMARK_DETECTORS:
+    detector resolved to "network" (plugin installed, torch and weights present), else
+    "facemesh" (mediapipe installed), else "dlib"; dlib's "auto" face detector to "hog" (the
+    face mesh and the network keep "auto", their own strategy). InputError for an unknown name,
+    a plugin that is not installed, or a face detector of another landmark detector."""
+    if landmark_detector not in LANDMARK_DETECTORS and landmark_detector not in plugins.entry_points():
         raise InputError(f"landmark detector: choose from {', '.join(LANDMARK_DETECTORS)}, "
                          f"got {landmark_detector!r}")
     if landmark_detector == "auto":
-        landmark_detector = "facemesh" if _facemesh_installed() else "dlib"
-    allowed = FACE_DETECTORS[landmark_detector]
+        landmark_detector = ("network" if _network_ready() else
+                             "facemesh" if _facemesh_installed() else "dlib")
+    if landmark_detector not in BUILTIN:
+        plugins.detector_class(landmark_detector)  # not installed: its one line, now
+    allowed = _face_detectors(landmark_detector)
     if face_detector not in allowed:
-        other = next(k for k, v in FACE_DETECTORS.items() if face_detector in v) if any(
-            face_detector in v for v in FACE_DETECTORS.values()) else None
+        other = next((k for k in BUILTIN if face_detector in FACE_DETECTORS[k]), None)
         hint = f" ({face_detector} is {other}'s)" if other else ""
         raise InputError(f"face detector {face_detector!r} does not go with the {landmark_detector} "
                          f"landmark detector: choose from {', '.join(allowed)}{hint}")
     if landmark_detector == "dlib" and face_detector == "auto":
         face_detector = "hog"
     return landmark_detector, face_detector
+
+
+def detect(image, *, landmark_detector: str = "auto", face_detector: str = "auto", box=None) -> Detection:
+    """The landmarks of the largest face in a photo (or of the face in ``box``), with what the
+    detector knows of them.
+
+    Parameters
+    ----------
+    image : path or (H, W, 3) array (see :func:`.images.as_image`)
+    landmark_detector : "auto", "facemesh", "dlib", "network" or another installed plugin's name
+    face_detector : "auto" or one of ``FACE_DETECTORS[landmark detector]``
+    box : (left, top, right, bottom) px, optional; skips face detection (a video's previous
+        frame's :attr:`Detection.box`, for instance)
+
+    Returns
+    -------
+    :class:`~.result.Detection`: the face mesh's 478 points (3D convention, no σ), dlib's 68
+    (2D convention, no σ), the network's 478 face-mesh rows with their σ and its own 68 iBUG
+    rows (3D convention, score, box).
+
+    Raises
+    ------
+    FitError when no face is found; InputError for a bad image, box or detector name.
+    """
+    landmarks, faces = resolve_detectors(landmark_detector, face_detector)
+    if landmarks in BUILTIN:
+        pts = detect_landmarks(image, landmark_detector=landmarks, face_detector=faces, box=box)
+        if landmarks == "dlib":
+            return Detection(pts, None, pts, None, "ibug68", "2d", describe(landmarks, faces))
+        from .facemesh import to_ibug68
+
+        return Detection(pts, None, to_ibug68(pts), None, "facemesh478", "3d", describe(landmarks, faces))
+    img, _ = as_image(image)
+    return plugins.detector(landmarks).detect(img, box=None if box is None else check_box(box),
+                                              face_detector=faces, name=_name(image))
+
+
+def _name(image) -> str:
+    return "image" if not isinstance(image, (str, bytes)) and not hasattr(image, "__fspath__") else str(image)
 
 
 def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: str = "auto",
@@ -70,20 +149,22 @@ def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: s
     Parameters
     ----------
     image : path or (H, W, 3) array (see :func:`.images.as_image`)
-    landmark_detector : {"auto", "facemesh", "dlib"}
-    face_detector : "auto", or "short-range" / "full-range" (facemesh), "hog" / "cnn" (dlib)
+    landmark_detector : {"auto", "facemesh", "dlib", "network"} or a plugin's name
+    face_detector : "auto" or one of ``FACE_DETECTORS[landmark detector]``
     box : (left, top, right, bottom) pixels, optional; skips face detection
 
     Returns
     -------
-    (478, 2) float64 (facemesh, mediapipe's order) or (68, 2) (dlib, iBUG order) pixels,
-    0-based, x right, y down.
+    (478, 2) float64 (facemesh, the network: mediapipe's order) or (68, 2) (dlib, iBUG order)
+    pixels, 0-based, x right, y down.
 
     Raises
     ------
     FitError when no face is found; InputError for a bad image, box or detector name.
     """
     landmarks, faces = resolve_detectors(landmark_detector, face_detector)
+    if landmarks not in BUILTIN:
+        return detect(image, landmark_detector=landmarks, face_detector=faces, box=box).points
     if landmarks == "facemesh":
         from .facemesh import detect_landmarks as mesh
     else:
@@ -93,10 +174,13 @@ def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: s
 
 def detect_ibug68(image, *, landmark_detector: str = "auto", face_detector: str = "auto",
                   box=None) -> np.ndarray:
-    """:func:`detect_landmarks` as 68 iBUG points -> (68, 2) px: the face mesh's 478 through
-    :data:`.facemesh.FACEMESH_TO_IBUG68` (a stopgap until the fitter takes the 478 points)."""
-    pts = detect_landmarks(image, landmark_detector=landmark_detector,
-                           face_detector=face_detector, box=box)
+    """:func:`detect_landmarks` as 68 iBUG points -> (68, 2) px: dlib's own, the network's own
+    68 rows, the face mesh's 478 through :data:`.facemesh.FACEMESH_TO_IBUG68` (a stopgap until
+    the fitter takes the 478 points)."""
+    landmarks, faces = resolve_detectors(landmark_detector, face_detector)
+    if landmarks not in BUILTIN:
+        return detect(image, landmark_detector=landmarks, face_detector=faces, box=box).ibug68
+    pts = detect_landmarks(image, landmark_detector=landmarks, face_detector=faces, box=box)
     if len(pts) == 68:
         return pts
     from .facemesh import to_ibug68
@@ -106,17 +190,25 @@ def detect_ibug68(image, *, landmark_detector: str = "auto", face_detector: str 
 
 def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
     """Face boxes of the landmark detector's face detector, largest first -> (F, 4) float64
-    ``(left, top, right, bottom)`` px. The face mesh's "auto" is its full-range detector."""
+    ``(left, top, right, bottom)`` px. The face mesh's "auto" is its full-range detector; the
+    network's, the face detector it would use (its windows when that finds none)."""
     landmarks, faces = resolve_detectors(landmark_detector, face_detector)
     if landmarks == "facemesh":
         from .facemesh import detect_faces as boxes
 
         return boxes(image, face_detector="full-range" if faces == "auto" else faces)
-    from .dlib_detector import detect_faces as boxes
+    if landmarks == "dlib":
+        from .dlib_detector import detect_faces as boxes
 
-    return boxes(image, face_detector=faces)
+        return boxes(image, face_detector=faces)
+    return plugins.detector(landmarks).detect_faces(as_image(image)[0], face_detector=faces)
 
 
 def describe(landmark_detector: str = "auto", face_detector: str = "auto") -> str:
-    """The choice as run, for reports: e.g. ``"facemesh auto"``, ``"dlib hog"``."""
+    """The choice as run, for reports: e.g. ``"facemesh auto"``, ``"dlib hog"``, ``"network auto"``."""
     return " ".join(resolve_detectors(landmark_detector, face_detector))
+
+
+def landmark_count(landmark_detector: str = "auto", face_detector: str = "auto") -> int:
+    """Rows :func:`detect_landmarks` gives with that choice: 68 (dlib) or 478 (the others)."""
+    return 68 if resolve_detectors(landmark_detector, face_detector)[0] == "dlib" else 478

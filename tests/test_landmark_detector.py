@@ -1,0 +1,316 @@
+"""The landmark network as a detector (neural.landmark_detector) and the plugin interface of
+morphable.detection: discovery, the "auto" choice, the crop geometry, the failure policy and
+the bad-input table's "landmark network detector" rows. A tiny random network in tmp_path
+stands in for the trained weights."""
+import math
+import re
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from morphable.errors import FitError, InputError
+
+torch = pytest.importorskip("torch")
+
+REPO = Path(__file__).resolve().parents[1]
+ENTRY = "neural.landmark_detector:NetworkDetector"
+
+
+def tiny_net(path, score=5.0, mean_points=None):
+    """A tiny LandmarkNet whose outputs do not depend on the crop (the last layer's weights
+    are zero): points at ``mean_points`` (546, 2) crop-normalised (default 0), σ 8 crop px,
+    face logit ``score``; saved to ``path``."""
+    from neural.landmark_net import LandmarkConfig, LandmarkNet, save_landmark_net
+
+    net = LandmarkNet(LandmarkConfig(widths=(4, 4, 4, 4, 4), blocks=(0, 0, 0, 0, 0), hidden=8))
+    if mean_points is not None:
+        net.set_mean_points(torch.as_tensor(mean_points, dtype=torch.float32))
+    with torch.no_grad():
+        net.head[-1].bias[-1] = score
+    save_landmark_net(net, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def nets(tmp_path_factory):
+    d = tmp_path_factory.mktemp("nets")
+    return {"face": tiny_net(d / "face.pt"), "blind": tiny_net(d / "blind.pt", score=-5.0)}
+
+
+@pytest.fixture
+def plugin(monkeypatch, nets):
+    """The network registered as an installed plugin (the worktree's editable install may
+    predate the entry point), its weights the tiny face network; caches cleared."""
+    import morphable.detection as det
+    from morphable.detection import plugins
+
+    real = metadata.entry_points
+
+    def entry_points(**kw):
+        if kw.get("group") == plugins.GROUP:
+            return [metadata.EntryPoint("network", ENTRY, plugins.GROUP)]
+        return real(**kw)
+
+    monkeypatch.setattr(plugins.metadata, "entry_points", entry_points)
+    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(nets["face"]))
+    for f in (plugins.detector, det._network_ready):
+        f.cache_clear()
+    yield
+    for f in (plugins.detector, det._network_ready):
+        f.cache_clear()
+
+
+def noise(h=240, w=320, seed=0):
+    return np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+# --- the package metadata and discovery ------------------------------------------------------
+
+def test_entry_point_is_declared_in_setup_cfg():
+    text = (REPO / "setup.cfg").read_text()
+    group = text[text.index("morphable.landmark_detectors ="):].splitlines()
+    assert group[1].split() == ["network", "=", ENTRY]
+
+
+def test_discovery_loads_the_plugin_only_when_asked(plugin, monkeypatch):
+    from morphable.detection import plugins
+    from neural.landmark_detector import NetworkDetector
+
+    assert plugins.installed() == ["network"]
+    assert plugins.detector_class("network") is NetworkDetector
+    with pytest.raises(InputError, match="'nosuch' is not installed"):
+        plugins.detector_class("nosuch")
+    broken = [metadata.EntryPoint("broken", "nosuch_module:X", plugins.GROUP)]
+    monkeypatch.setattr(plugins.metadata, "entry_points", lambda **kw: broken)
+    with pytest.raises(InputError, match="'broken' .* cannot be loaded"):
+        plugins.detector_class("broken")
+
+
+def test_import_and_discovery_pull_no_torch():
+    code = ("import sys, morphable, morphable.detection as d; d.plugins.installed(); "
+            "d.resolve_detectors('dlib'); "
+            "print(sorted(m for m in ('torch', 'neural', 'neural.landmark_detector') if m in sys.modules))")
+    # "auto" asks the installed plugin whether it can run: its module, not torch
+    code += ("; from importlib import metadata; ep = metadata.EntryPoint('network', "
+             f"'{ENTRY}', d.plugins.GROUP); d.plugins.metadata.entry_points = lambda **kw: [ep]; "
+             "d.resolve_detectors(); print('torch' in sys.modules, 'neural.landmark_detector' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
+                         env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:2] == ["[]", "False True"]
+
+
+# --- the "auto" choice -----------------------------------------------------------------------
+
+def test_auto_prefers_the_network_then_facemesh_then_dlib(plugin, monkeypatch, tmp_path):
+    import morphable.detection as det
+
+    assert det.resolve_detectors() == ("network", "auto")
+    assert det.resolve_detectors("auto", "windows") == ("network", "windows")
+    assert det.describe("network", "hog") == "network hog"
+    # no weights: auto falls back (the network named explicitly still resolves; its weights
+    # error comes with the first detection)
+    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(tmp_path / "missing.pt"))
+    det._network_ready.cache_clear()
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    assert det.resolve_detectors() == ("facemesh", "auto")
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: False)
+    assert det.resolve_detectors() == ("dlib", "hog")
+    assert det.resolve_detectors("network") == ("network", "auto")
+    with pytest.raises(InputError, match="'windows' does not go with the dlib"):
+        det.resolve_detectors("dlib", "windows")
+    assert det.landmark_count("network") == 478 and det.landmark_count("dlib") == 68
+
+
+def test_network_not_installed_is_one_line(monkeypatch):
+    import morphable.detection as det
+    from morphable.detection import plugins
+
+    monkeypatch.setattr(plugins.metadata, "entry_points", lambda **kw: [])
+    det._network_ready.cache_clear()
+    try:
+        with pytest.raises(InputError, match="'network' is not installed .*pip install"):
+            det.resolve_detectors("network")
+        assert det.resolve_detectors()[0] in ("facemesh", "dlib")
+    finally:
+        det._network_ready.cache_clear()
+
+
+# --- geometry ------------------------------------------------------------------------------
+
+def test_crops_put_each_photo_pixel_where_the_crop_geometry_says():
+    """A bright blob at a known photo pixel lands at its crop coordinates (image_to_crop),
+    for a box cut at full resolution and one reduced 4 times."""
+    from neural.landmark_detector import crops
+    from neural.landmark_net import crop_theta, image_to_crop, points_in_crop_px
+
+    H, W, R = 1200, 1600, 32
+    yy, xx = np.mgrid[:H, :W]
+    for box, blob, radius in (((100.0, 50.0, 140.0, 90.0), (117.3, 71.6), 1.5),
+                              ((300.0, 200.0, 556.0, 456.0), (451.0, 322.0), 12.0)):
+        img = np.exp(-((xx - blob[0]) ** 2 + (yy - blob[1]) ** 2) / (2 * radius ** 2))
+        img = np.repeat((255 * img).round().astype(np.uint8)[..., None], 3, -1)
+        c = crops(img, np.array([box]), R)[0, 0].numpy() + 1
+        m = np.mgrid[:R, :R]
+        centroid = np.array([(c * m[1]).sum(), (c * m[0]).sum()]) / c.sum()
+        theta = crop_theta(np.array([box]), (W, H))
+        q = image_to_crop(torch.tensor([[blob]], dtype=torch.float64), theta.double(), (W, H))
+        expect = points_in_crop_px(q[0, 0].numpy(), R)
+        assert np.abs(centroid - expect).max() < 0.1, (box, centroid, expect)
+
+
+def _face_template():
+    """546 points of a made-up face: the 68 iBUG rows a ring and a mouth, the rest inside."""
+    rng = np.random.default_rng(1)
+    t = np.linspace(0, 2 * np.pi, 68, endpoint=False)
+    p68 = np.column_stack([100 + 40 * np.cos(t), 120 + 50 * np.sin(t)])
+    lo, hi = p68.min(0), p68.max(0)
+    p478 = lo + (hi - lo) * rng.random((478, 2))
+    return np.concatenate([p478, p68])
+
+
+def test_two_passes_and_the_way_back_round_trip_to_sub_pixel(tmp_path):
+    """A network that always answers the same crop-normalised points (those of a face framed
+    by face_box) gives, for a box of that face's 68-point extent anywhere in the photo, the
+    face itself: both passes frame it the same way and the points come back to photo pixels;
+    σ is 8 crop px times the framing side / 128."""
+    from neural.landmark_detector import NetworkDetector
+    from neural.landmark_set import IBUG_ROWS, face_box
+
+    P = _face_template()
+    F = face_box(P[IBUG_ROWS])
+    q0 = (P - (F[:2] + F[2:]) / 2) / ((F[2] - F[0]) / 2)
+    weights = tiny_net(tmp_path / "template.pt", mean_points=q0)
+    img = noise()
+    for passes in (1, 2):
+        det = NetworkDetector(weights, passes=passes)
+        for scale, shift in ((1.0, (0.0, 0.0)), (0.7, (60.3, -10.8)), (1.6, (40.0, 20.0))):
+            face = P * scale + shift
+            d = det.detect(img, box=np.concatenate([face[IBUG_ROWS].min(0), face[IBUG_ROWS].max(0)]))
+            assert np.abs(d.points - face[:478]).max() < 1e-3
+            assert np.abs(d.ibug68 - face[IBUG_ROWS]).max() < 1e-3
+            side = (face_box(face[IBUG_ROWS])[2] - face_box(face[IBUG_ROWS])[0])
+            np.testing.assert_allclose(d.sigma_px, 8.0 * side / 128, rtol=1e-5)
+            assert d.scheme == "facemesh478" and d.convention == "3d" and d.detector == "network box"
+            np.testing.assert_allclose(d.box, np.r_[face[IBUG_ROWS].min(0), face[IBUG_ROWS].max(0)], atol=1e-3)
+
+
+def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypatch):
+    from neural import landmark_detector as ld
+
+    det = ld.NetworkDetector(nets["face"])
+    img = noise()
+    boxes = np.array([[100.0, 60.0, 200.0, 160.0], [10.0, 10.0, 40.0, 40.0]])
+    seen = []
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes",
+                        staticmethod(lambda image, kind: seen.append(kind) or boxes))
+    monkeypatch.setattr(det, "passes", 1)
+    d = det.detect(img, face_detector="hog")
+    scale, dx, dy = ld.BOX_FRAMING["hog"]
+    framing = ld.framing_box(boxes[0], "hog")
+    np.testing.assert_allclose(framing[2] - framing[0], 100 * scale)
+    np.testing.assert_allclose((framing[:2] + framing[2:]) / 2, [150 + 100 * dx, 110 + 100 * dy])
+    # the tiny net puts every point at its crop's centre: the largest box's framing centre
+    np.testing.assert_allclose(d.points.mean(0), (framing[:2] + framing[2:]) / 2 - 0.0, atol=1e-3)
+    assert seen == ["hog"] and d.detector == "network hog" and d.score > 0.99
+    # auto without a face detector's box: the network's own windows
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes", staticmethod(lambda image, kind: np.zeros((0, 4))))
+    monkeypatch.setattr(ld.NetworkDetector, "face_detectors_for",
+                        staticmethod(lambda f: ("short-range", "full-range") if f == "auto" else (f,)))
+    assert det.detect(img).detector == "network windows"
+    with pytest.raises(FitError, match="no face found by the landmark network \\(full-range found none"):
+        det.detect(img, face_detector="full-range")
+    # the next face detector is asked when the first finds none
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes",
+                        staticmethod(lambda image, kind: boxes if kind == "full-range" else np.zeros((0, 4))))
+    assert det.detect(img).detector == "network full-range"
+    np.testing.assert_allclose(det.detect_faces(img), ld.extent_box(ld.framing_box(boxes, "full-range")))
+
+
+def test_windows_cover_the_photo():
+    from neural.landmark_detector import MIN_BOX_PX, windows
+
+    w = windows(320, 240)
+    side = w[:, 2] - w[:, 0]
+    assert side.min() >= MIN_BOX_PX and np.isclose(side.max(), 240)
+    assert w[:, 0].min() == -0.5 and np.isclose(w[:, 2].max(), 319.5)
+    assert np.isclose(w[:, 3].max(), 239.5)
+
+
+# --- through morphable.detection ---------------------------------------------------------------
+
+def test_public_interface_gives_478_rows_the_68_and_sigma(plugin):
+    from morphable.detection import Detection, detect, detect_faces, detect_ibug68, detect_landmarks
+
+    img = noise()
+    box = (100, 60, 200, 160)
+    d = detect(img, landmark_detector="network", box=box)
+    assert isinstance(d, Detection) and d.sigma_px.shape == (478,) and d.ibug68_sigma_px.shape == (68,)
+    np.testing.assert_allclose(detect_landmarks(img, landmark_detector="network", box=box), d.points)
+    np.testing.assert_allclose(detect_ibug68(img, box=box), d.ibug68)      # auto is the network
+    assert detect_faces(img, landmark_detector="network", face_detector="windows").shape == (1, 4)
+    # the face mesh and dlib through the same function: no σ, their conventions
+    pytest.importorskip("dlib")
+    with pytest.raises(FitError, match="no face"):
+        detect(np.full((120, 160, 3), 128, np.uint8), landmark_detector="dlib")
+
+
+# --- the bad-input table's rows ------------------------------------------------------------------
+
+def _rows():
+    text = (REPO / "docs" / "bad_input.md").read_text()
+    sec = text[text.index("## The landmark network detector"):]
+    sec = sec[:sec.index("\n## ")]
+    rows = [ln for ln in sec.splitlines() if ln.startswith("| `")]
+    return [tuple(re.findall(r"`([^`]*)`", ln)[:2]) for ln in rows]
+
+
+ROWS = _rows()
+
+
+@pytest.mark.parametrize("call, message", ROWS)
+def test_bad_input_rows(call, message, nets, tmp_path, monkeypatch):
+    from morphable.detection import Detection
+    from neural.landmark_detector import NetworkDetector
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "corrupt.pt").write_bytes(np.random.default_rng(0).bytes(2000))
+    scope = {"np": np, "NetworkDetector": NetworkDetector, "Detection": Detection,
+             "det": NetworkDetector(nets["face"]), "blind": NetworkDetector(nets["blind"]),
+             "img": noise(), "pts": np.zeros((68, 2))}
+    with pytest.raises((InputError, FitError)) as e:
+        eval(call, scope)
+    line = str(e.value)
+    assert "\n" not in line and message in line, line
+
+
+def test_bad_input_table_has_the_rows():
+    assert len(ROWS) >= 8
+
+
+def test_face_boxes_given_back_frame_the_same_crop(nets, monkeypatch):
+    """detect_faces gives boxes in the convention detect(box=) reads: the framing comes back."""
+    from neural import landmark_detector as ld
+
+    det = ld.NetworkDetector(nets["face"])
+    raw = np.array([[100.0, 60.0, 200.0, 170.0]])
+    monkeypatch.setattr(ld.NetworkDetector, "detector_boxes", staticmethod(lambda image, kind: raw))
+    faces = det.detect_faces(noise(), face_detector="full-range")
+    np.testing.assert_allclose(ld.framing_box(faces, "box"), ld.framing_box(raw, "full-range"), atol=1e-9)
+
+
+def test_landmark_noise_gives_the_fitter_each_frames_sigma():
+    from morphable.detection import Detection, landmark_noise
+
+    p478, p68 = np.zeros((478, 2)), np.zeros((68, 2))
+    net = Detection(p478, np.full(478, 2.0), p68, np.full(68, 3.0), "facemesh478", "3d", "network box")
+    mesh = Detection(p478, None, p68, None, "facemesh478", "3d", "facemesh auto")
+    assert landmark_noise([None, mesh], 1.5) == 1.5 and landmark_noise([net], "auto") == "auto"
+    s = landmark_noise([net, None, mesh], 1.5)
+    assert s.shape == (3, 478) and (s[0] == 2.0).all() and (s[1:] == 1.5).all()
+    s68 = landmark_noise([net, None], 1.0, n_points=68)
+    assert s68.shape == (2, 68) and (s68[0] == 3.0).all() and (s68[1] == 1.0).all()
