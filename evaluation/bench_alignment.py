@@ -55,7 +55,7 @@ from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
            "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
-           "eye_distance", "nme", "yaw_table", "aflw_angles", "run_method", "main"]
+           "eye_distance", "nme", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
 NETWORK_METHODS = ("network", "ours-network")
@@ -215,7 +215,7 @@ def refine_options(args) -> dict:
 
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
                steps: int = 100, renderer_options: dict | None = None,
-               loss_weights: dict | None = None) -> dict:
+               loss_weights: dict | None = None, given_boxes=None) -> dict:
     """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
     renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo
     (``paths``: photo paths or (H, W, 3) uint8 arrays): ``pred`` (N, 68, 2) px (NaN rows: no face),
@@ -223,7 +223,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     ``errors`` {photo: one-line reason}. With annotation ``boxes`` (N, 4) px, the face is the
     detector's face that overlaps the annotated one most (IoU >= 0.3, else a failure), each
     detector with its own face detector's box (dlib's shape predictor expects its detector's
-    framing); otherwise the largest face found."""
+    framing); otherwise the largest face found. ``given_boxes`` (N, 4) px: no face detection,
+    each photo's landmarks detected in its given box (the dataset's box protocol)."""
     from morphable.detection import detect_faces, detect_ibug68, detect_landmarks
     from morphable.detection.boxes import iou
     from morphable.detection.images import as_image
@@ -247,8 +248,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
         name = name if isinstance(p, (str, Path)) else f"image {i}"
         t = time.perf_counter()
         try:
-            box = None
-            if boxes is not None:
+            box = None if given_boxes is None else given_boxes[i]
+            if boxes is not None and given_boxes is None:
                 faces = detect_faces(img, landmark_detector=detector)
                 overlap = iou(faces, boxes[i]) if len(faces) else np.zeros(0)
                 if not len(faces) or overlap.max() < 0.3:
@@ -270,12 +271,19 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     return {"pred": pred, "ms": ms, "euler_deg": euler, "errors": errors}
 
 
-def _aflw2000(methods, root, n, model, **refine) -> dict:
+def dataset_boxes(gt) -> np.ndarray:
+    """``--boxes dataset``: the box of each photo's ground-truth points (N, 68, 2) -> (N, 4)
+    ``(left, top, right, bottom)`` px, as peers given the annotation's box are scored."""
+    return np.concatenate([np.nanmin(gt, 1), np.nanmax(gt, 1)], 1)
+
+
+def _aflw2000(methods, root, n, model, box_source="detect", **refine) -> dict:
     d = load_aflw2000(root, n)
     norm = box_size(d["gt"])
-    out = {"photos": len(d["paths"]), "methods": {}}
+    out = {"photos": len(d["paths"]), "methods": {}, "boxes": box_source}
+    given = dataset_boxes(d["gt"]) if box_source == "dataset" else None
     for m in methods:
-        r = run_method(m, d["paths"], model, convention="3d", **refine)
+        r = run_method(m, d["paths"], model, convention="3d", given_boxes=given, **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = yaw_table(e, d["yaw_deg"])
         row["median_ms"] = float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None
@@ -289,16 +297,18 @@ def _aflw2000(methods, root, n, model, **refine) -> dict:
     return out
 
 
-def _300w(methods, root, n, model, **refine) -> dict:
+def _300w(methods, root, n, model, box_source="detect", **refine) -> dict:
     d = load_300w(root, n)
     norm = eye_distance(d["gt"])
-    out = {"photos": len(d["paths"]), "methods": {},
-           "face": "the detected face overlapping the ground-truth points' box most"}
+    out = {"photos": len(d["paths"]), "methods": {}, "boxes": box_source,
+           "face": "the detected face overlapping the ground-truth points' box most"
+           if box_source == "detect" else "the ground-truth points' box"}
     # AFW photos with several faces are stored once per annotated face: each method takes the
     # detected face on the annotated one
-    boxes = np.concatenate([d["gt"].min(1), d["gt"].max(1)], 1)
+    boxes = dataset_boxes(d["gt"])
     for m in methods:
-        r = run_method(m, d["paths"], model, boxes=boxes, **refine)
+        r = run_method(m, d["paths"], model, boxes=boxes, given_boxes=boxes
+                       if box_source == "dataset" else None, **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = {"failures": int(np.isnan(e).sum()),
                "median_ms": float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None}
@@ -345,6 +355,9 @@ def main(argv=None):
     p.add_argument("--methods", nargs="+", choices=METHODS + NETWORK_METHODS + REFINED, default=list(METHODS))
     add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="photos per set (default all)")
+    p.add_argument("--boxes", choices=("detect", "dataset"), default="detect",
+                   help="detect: each method finds the face itself; dataset: every method gets "
+                        "the box of the ground-truth points (no face detection)")
     p.add_argument("--model", default="sfm")
     p.add_argument("--data", type=Path, default=None, help="shared data folder (default: $MORPHABLE_DATA "
                    "or ../shared/data)")
@@ -361,9 +374,9 @@ def main(argv=None):
     if any("+" in m for m in a.methods):
         report.update(steps=a.steps, gar_weights=a.gar_weights, loss_weights=refine["loss_weights"])
     if "aflw2000" in a.set:
-        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, **refine)
+        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, a.boxes, **refine)
     if "300w" in a.set:
-        report["300w"] = _300w(a.methods, root, a.n, model, **refine)
+        report["300w"] = _300w(a.methods, root, a.n, model, a.boxes, **refine)
     a.report.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(a.report) as tmp:
         tmp.write_text(json.dumps(report, indent=1))

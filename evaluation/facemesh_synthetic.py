@@ -1,4 +1,5 @@
-"""The face mesh on a fixed synthetic validation set: the baseline a landmark network must beat.
+"""Detectors on a fixed synthetic validation set: the face mesh (the baseline a landmark network
+must beat) and the landmark network (``--methods facemesh network``).
 
 Faces: ``--n`` (300) random SFM faces at ``--resolution`` (256) px drawn by
 :class:`neural.synthetic.SyntheticEngine` with its pose (yaw +-90, pitch +-40, roll +-30
@@ -130,6 +131,24 @@ def format_tables(t) -> str:
     return "\n".join(lines)
 
 
+def _failures(pred, gt, faces) -> dict:
+    """:func:`score` of a method's ``pred`` (n, 68, 2) px, a face found elsewhere (its points'
+    box overlapping the true one by IoU < 0.3: a background photo's face) a failure too."""
+    from morphable.detection.boxes import iou
+
+    pred = pred.copy()
+    no_face = ~np.isfinite(pred).any((1, 2))
+    truth = np.concatenate([np.nanmin(gt, 1), np.nanmax(gt, 1)], 1)
+    found = np.zeros((len(pred), 4))
+    found[~no_face] = np.concatenate([np.nanmin(pred[~no_face], 1), np.nanmax(pred[~no_face], 1)], 1)
+    wrong = np.array([not nf and float(iou(found[i:i + 1], truth[i])[0]) < 0.3
+                      for i, nf in enumerate(no_face)])
+    pred[wrong] = np.nan
+    s = score(pred, faces)
+    s["no_face"] = no_face
+    return s
+
+
 @one_line_errors("python -m evaluation.facemesh_synthetic")
 def main(argv=None) -> int:
     from .bench_alignment import data_root, run_method
@@ -143,6 +162,9 @@ def main(argv=None) -> int:
                    help="London textures from the end of the list (0: procedural albedo)")
     p.add_argument("--data", default=None, help="shared data folder (default ../shared/data)")
     p.add_argument("--texture-cache", help="npz keeping the extracted textures between runs")
+    p.add_argument("--methods", nargs="+", default=["facemesh"],
+                   help="detectors as evaluation.bench_alignment names them (facemesh, dlib, "
+                        "network; default facemesh)")
     p.add_argument("--report", help="output JSON")
     args = p.parse_args(argv)
     if args.n < 1 or args.resolution < 32:
@@ -153,27 +175,17 @@ def main(argv=None) -> int:
     faces = validation_faces(eng, args.n, args.seed)
     t_draw = time.perf_counter() - t0
     gt = np.where(faces["defined68"][..., None], faces["points68"], np.nan)
-    r = run_method("facemesh", list(faces["images"]))
-    pred = r["pred"]
-    no_face = ~np.isfinite(pred).any((1, 2))
-    # a face found elsewhere (a background photo's) is a failure too
-    from morphable.detection.boxes import iou
-
-    truth = np.concatenate([np.nanmin(gt, 1), np.nanmax(gt, 1)], 1)
-    found = np.zeros((len(pred), 4))
-    found[~no_face] = np.concatenate([np.nanmin(pred[~no_face], 1), np.nanmax(pred[~no_face], 1)], 1)
-    wrong = np.array([not nf and float(iou(found[i:i + 1], truth[i])[0]) < 0.3
-                      for i, nf in enumerate(no_face)])
-    pred[wrong] = np.nan
-    s = score(pred, faces)
-    s["no_face"] = no_face
-    t = tables(faces, s)
     report = {"faces": args.n, "resolution": args.resolution, "seed": args.seed, "model": args.model,
               "textures": args.textures, "normaliser": "sqrt(w h) of the box of the defined true points",
-              "tables": t, "seconds_drawing": round(t_draw, 1),
-              "median_ms_detection": float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None,
-              "seconds": round(time.perf_counter() - t0, 1)}
-    print(format_tables(t))
+              "seconds_drawing": round(t_draw, 1), "methods": {}}
+    for method in args.methods:
+        r = run_method(method, list(faces["images"]))
+        t = tables(faces, _failures(r["pred"], gt, faces))
+        report["methods"][method] = {
+            "tables": t, "median_ms_detection":
+            float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None}
+        print(f"{method}:\n{format_tables(t)}")
+    report["seconds"] = round(time.perf_counter() - t0, 1)
     print(f"{args.n} faces drawn in {t_draw:.0f} s, {report['seconds']:.0f} s in all", file=sys.stderr)
     if args.report:
         from morphable.io.atomic import write_json
