@@ -75,7 +75,7 @@ def _load_compact(path: Path, splits) -> dict:
     return out
 
 
-def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 128,
+def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 160,
          splits=None) -> Path:
     """A PNG of ``n`` random faces of ``pack`` (folder or compact file), ``columns`` per row,
     each crop at ``cell`` px: visible labels green, labelled hidden ones red, the face box
@@ -101,7 +101,7 @@ def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 12
         for (x, y), lab, vis in zip(d["points"][i], d["labelled"][i], d["visible"][i]):
             if lab:
                 x, y = (x + 0.5) * s - 0.5, (y + 0.5) * s - 0.5
-                dr.point([(x, y)], fill=(0, 255, 0) if vis else (255, 0, 0))
+                dr.ellipse([x - 1, y - 1, x + 1, y + 1], fill=(0, 255, 0) if vis else (255, 0, 0))
         sheet.paste(im, ((j % columns) * cell, (j // columns) * cell))
     out = Path(out)
     with atomic_path(out) as tmp:
