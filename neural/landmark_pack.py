@@ -63,8 +63,9 @@ def _load_compact(path: Path, splits) -> dict:
     off = d.pop("jpeg_offsets")
     jpeg = d.pop("jpeg")
     P = d.pop("n_points")
-    d["image"] = np.stack([np.asarray(Image.open(io.BytesIO(jpeg[off[i]:off[i + 1]].tobytes())).convert("RGB"))
-                           for i in np.flatnonzero(keep)]) if keep.any() else np.zeros((0, 1, 1, 3), np.uint8)
+    images = [np.asarray(Image.open(io.BytesIO(jpeg[off[i]:off[i + 1]].tobytes())).convert("RGB"))
+              for i in np.flatnonzero(keep)]
+    d["image"] = np.stack(images) if images else np.zeros((0, 1, 1, 3), np.uint8)
     for k in ("labelled", "visible"):
         d[k] = np.unpackbits(d[k], axis=1, count=int(P)).astype(bool)
     d["points"] = d["points"].astype(np.float32)
