@@ -105,7 +105,8 @@ def second_fit_error(model, image, labels68):
 def pack_refit(pack, n: int = 60, seed: int = 0, bins=(0, 30, 60, 90)) -> dict:
     """The check of a profiled landmark pack: ``n`` random faces of ``pack`` (its crops), each
     through :func:`second_fit_error` against its labels' 68 iBUG rows; per |yaw| bin of the
-    labels' pose: faces, no face found, mean px error (crop px) and NME %."""
+    labels' pose (the last bin open-ended): faces, no face found, mean px error (crop px) and
+    NME %."""
     import morphable
     from neural.landmark_pack import load_pack
     from neural.landmark_set import IBUG_ROWS
@@ -119,7 +120,8 @@ def pack_refit(pack, n: int = 60, seed: int = 0, bins=(0, 30, 60, 90)) -> dict:
         errs.append(second_fit_error(model, d["image"][i], d["points"][i][IBUG_ROWS]))
     rows = []
     for lo, hi in zip(bins[:-1], bins[1:]):
-        k = [j for j in range(len(pick)) if lo <= yaw[j] < hi or (hi == bins[-1] and yaw[j] == hi)]
+        # the last bin takes the turns past its end too (the fit's pose plus a clipped turn)
+        k = [j for j in range(len(pick)) if lo <= yaw[j] and (yaw[j] < hi or hi == bins[-1])]
         got = [errs[j] for j in k if errs[j] is not None]
         rows.append({"abs_yaw_deg": f"{lo}-{hi}", "faces": len(k), "no_face": len(k) - len(got),
                      "px_mean": float(np.mean([g[0] for g in got])) if got else None,

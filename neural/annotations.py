@@ -22,7 +22,6 @@ on the image's left.
 """
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np

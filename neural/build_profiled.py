@@ -151,7 +151,7 @@ def _build_shard(job):
     return len(records), len(failures)
 
 
-def build(data, out, per_photo: int = 6, aflw: int = 400, resolution: int = 192,
+def build(data, out, per_photo: int = 6, aflw: int = 300, resolution: int = 192,
           shard_size: int = 16, seed: int = 0, workers: int = 1, model: str = "sfm",
           texture_size: int = 256) -> dict:
     """Build (or finish) the profiled pack at ``out`` (``shard_size`` photos a shard); returns
@@ -184,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default="../shared/data", help="the shared data folder")
     p.add_argument("--out", required=True, help="the pack folder (made; a rerun finishes it)")
     p.add_argument("--per-photo", type=int, default=6, help="poses per photo (K)")
-    p.add_argument("--aflw", type=int, default=400, help="AFLW crops to use, evenly spaced (0: none)")
+    p.add_argument("--aflw", type=int, default=300, help="AFLW crops to use, evenly spaced (0: none)")
     p.add_argument("--resolution", type=int, default=192, help="crop side, px")
     p.add_argument("--shard-size", type=int, default=16, help="photos per shard file")
     p.add_argument("--seed", type=int, default=0)

@@ -63,8 +63,9 @@ def _load_compact(path: Path, splits) -> dict:
     off = d.pop("jpeg_offsets")
     jpeg = d.pop("jpeg")
     P = d.pop("n_points")
-    d["image"] = np.stack([np.asarray(Image.open(io.BytesIO(jpeg[off[i]:off[i + 1]].tobytes())).convert("RGB"))
-                           for i in np.flatnonzero(keep)]) if keep.any() else np.zeros((0, 1, 1, 3), np.uint8)
+    images = [np.asarray(Image.open(io.BytesIO(jpeg[off[i]:off[i + 1]].tobytes())).convert("RGB"))
+              for i in np.flatnonzero(keep)]
+    d["image"] = np.stack(images) if images else np.zeros((0, 1, 1, 3), np.uint8)
     for k in ("labelled", "visible"):
         d[k] = np.unpackbits(d[k], axis=1, count=int(P)).astype(bool)
     d["points"] = d["points"].astype(np.float32)
@@ -75,7 +76,7 @@ def _load_compact(path: Path, splits) -> dict:
     return out
 
 
-def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 128,
+def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 160,
          splits=None) -> Path:
     """A PNG of ``n`` random faces of ``pack`` (folder or compact file), ``columns`` per row,
     each crop at ``cell`` px: visible labels green, labelled hidden ones red, the face box
@@ -101,7 +102,7 @@ def grid(pack, out, n: int = 24, seed: int = 0, columns: int = 8, cell: int = 12
         for (x, y), lab, vis in zip(d["points"][i], d["labelled"][i], d["visible"][i]):
             if lab:
                 x, y = (x + 0.5) * s - 0.5, (y + 0.5) * s - 0.5
-                dr.point([(x, y)], fill=(0, 255, 0) if vis else (255, 0, 0))
+                dr.ellipse([x - 1, y - 1, x + 1, y + 1], fill=(0, 255, 0) if vis else (255, 0, 0))
         sheet.paste(im, ((j % columns) * cell, (j // columns) * cell))
     out = Path(out)
     with atomic_path(out) as tmp:
