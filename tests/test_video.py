@@ -213,7 +213,7 @@ def test_fit_video_errors(face_clip):
 def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(face_clip):
     import json
 
-    r = _cli(["track", "face.mp4", "--out", "trk", "--overlay-video", "-q"], face_clip)
+    r = _cli(["track", "face.mp4", "--out", "trk", "--overlay-video", "--animated-mesh", "-q"], face_clip)
     assert r.returncode == 0, r.stderr
     summary = json.loads((face_clip / "trk" / "track.json").read_text())
     assert summary["frames"] == 12 and summary["frames_lost"] == [3, 4] and summary["fps"] == pytest.approx(30)
@@ -232,6 +232,37 @@ def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(f
     slope = np.polyfit(np.flatnonzero(ok), x, 1)[0]
     assert slope == pytest.approx(2.0, abs=0.4)
     assert probe(face_clip / "trk" / "overlay.mp4").n_frames == 12
+    _check_track_glb(face_clip / "trk" / "track.glb", t)
+
+
+def _check_track_glb(path, t):
+    """The animated mesh: one keyframe per tracked frame at its time, and each keyframe's scene
+    seen through the file's orthographic camera lands where the track's camera puts the
+    tracked mesh in the video frame (px)."""
+    from glb_reader import animated_vertices, read_glb
+
+    from morphable import load_model
+    from morphable.camera import Camera, euler_to_matrix
+
+    doc, acc = read_glb(path)
+    model = load_model("sfm")
+    ok = np.flatnonzero(t["tracked"])
+    anim = doc["animations"][0]
+    np.testing.assert_allclose(acc(anim["samplers"][0]["input"])[:, 0], t["time_s"][ok], rtol=1e-6)
+    assert anim["extras"]["frames_lost"] == [3, 4] and anim["extras"]["frames"] == ok.tolist()
+    prim = doc["meshes"][0]["primitives"][0]
+    assert acc(prim["attributes"]["POSITION"]).shape == (model.n_vertices, 3)
+    assert len(prim["targets"]) == model.n_expression
+    assert doc["meshes"][0]["extras"]["targetNames"] == list(model.expression_names)
+    cam = doc["cameras"][0]["orthographic"]
+    W, H = (int(x) for x in t["image_size"])
+    for k, f in enumerate(ok):
+        truth = Camera(kind="affine", rotation=euler_to_matrix(*t["euler_deg"][f]),
+                       translation=t["translation"][f], scale=t["scale"][f], image_size=(W, H)).project(
+            model.vertices(t["identity"], t["expression"][f]))
+        v = animated_vertices(doc, acc, k)
+        px = np.c_[(W - 1) / 2 + v[:, 0] / cam["xmag"] * W / 2, (H - 1) / 2 - v[:, 1] / cam["ymag"] * H / 2]
+        np.testing.assert_allclose(px, truth, atol=0.02)
 
 
 def test_track_bad_inputs_write_nothing(face_clip):
