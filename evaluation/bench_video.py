@@ -163,13 +163,13 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
     ``n_frames`` per condition) -> {condition: {row: figures}}; the mp4 files stay in ``work``.
 
     Rows: ``truth`` (its rigid motion), ``track`` (prior at 4 Hz), ``track, no prior``,
-    ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
+    ``track, identity shared`` (prior at 4 Hz, ``identity="shared"``), ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
     ``rotation_deg`` (mean angle from the true head rotation), ``jitter_mm`` (vertex
     acceleration, :func:`vertex_jitter`, of the face turned and moved in the image plane),
     ``frames_per_s``, ``frames_lost``."""
     from evaluation.videos import synthetic_video, write_rendered_video
     from morphable.camera import euler_to_matrix
-    from morphable.tracking import track_video
+    from morphable.tracking import DEFAULT_IDENTITY, track_video
 
     out = {}
     for c in conditions:
@@ -178,8 +178,9 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
         true_rot = np.stack([euler_to_matrix(*p) for p in video.poses_deg])
         load_detector(clip)     # once per process: no timed row pays the detector's load
         rows, neutral = {}, None
-        for name, hz in (("track", 4.0), ("track, no prior", 0.0)):
-            tr, seconds, cpu = timed(track_video, clip, model=model, smoothing_hz=hz)
+        for name, hz, how in (("track", 4.0, DEFAULT_IDENTITY), ("track, no prior", 0.0, DEFAULT_IDENTITY),
+                              ("track, identity shared", 4.0, "shared")):
+            tr, seconds, cpu = timed(track_video, clip, model=model, smoothing_hz=hz, identity=how)
             ok = tr.tracked
             meshes = np.full((n_frames, model.n_vertices, 3), np.nan)
             meshes[ok] = tr.fit.vertices()

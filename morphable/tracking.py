@@ -2,8 +2,10 @@
 
 :func:`track_video` runs these steps, each a function usable alone:
 
-1. the identity: one shared-identity fit (:func:`morphable.fitting.files.fit_files`) of
-   ``identity_frames`` frames spread uniformly over the video (frames without a face skipped);
+1. the identity: ``identity_frames`` frames spread uniformly over the video (frames without
+   a face skipped), each fitted alone and their identities averaged (``identity="average"``,
+   the default) or fitted together with one shared identity (``"shared"``), by
+   :func:`morphable.fitting.files.fit_files`;
 2. every frame, streamed (:func:`morphable.video.iter_frames`) in batches of
    :func:`chunk_frames` frames: landmarks detected in the box of the previous frame's points
    (:func:`carried_box`), the face detector run only when there is no box or the face is not
@@ -32,7 +34,7 @@ from .errors import FitError, InputError
 
 __all__ = ["TrackResult", "track_video", "write_track_glb", "fixed_identity_model", "carried_box",
            "fit_frames", "chunk_frames", "smooth_trajectories", "DEFAULT_SMOOTHING_HZ",
-           "LOST_RMSE_FRACTION", "CHUNK_BYTES"]
+           "LOST_RMSE_FRACTION", "CHUNK_BYTES", "IDENTITY_MODES", "DEFAULT_IDENTITY"]
 
 DEFAULT_SMOOTHING_HZ = 4.0
 """Cut-off of the temporal prior: head motion and speech are mostly slower; a detector's
@@ -206,6 +208,15 @@ def write_track_glb(track: TrackResult, path) -> Path:
                               orthographic_mm=(W / (2 * ref), H / (2 * ref)), extras=extras)
 
 
+IDENTITY_MODES = ("shared", "average")
+"""How :func:`track_video` makes the video's identity from its identity frames."""
+
+DEFAULT_IDENTITY = "average"
+"""Chosen on the photo-dressed validation subjects (docs/video.md): with the face mesh's
+points, a shared fit of frames spread over a head turn fits the identity to the detector's
+pose-dependent errors, worse the more frames it is given; single-frame fits keep each frame's
+prior, and their average removes their noise."""
+
 CHUNK_BYTES = 64 * 2 ** 20
 """Decoded frames held at once by :func:`track_video` (a batch of fits), bytes: 32 frames of
 640 x 480, 2 of 3840 x 2160; memory does not grow with the video's length."""
@@ -284,9 +295,9 @@ def fit_frames(fixed, points, image_size) -> list:
     return out
 
 
-def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detector: str = "auto",
-                face_detector: str = "auto", smoothing_hz: float = DEFAULT_SMOOTHING_HZ,
-                progress: bool = False) -> TrackResult:
+def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = DEFAULT_IDENTITY,
+                landmark_detector: str = "auto", face_detector: str = "auto",
+                smoothing_hz: float = DEFAULT_SMOOTHING_HZ, progress: bool = False) -> TrackResult:
     """Track the face of a video (see the module docstring for the steps).
 
     Parameters
@@ -294,6 +305,8 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
     path : a video file (:mod:`morphable.video`)
     model : MorphableModel or name/path
     identity_frames : int >= 1, frames spread uniformly for the identity fit
+    identity : "average" (each identity frame fitted alone, their identity coefficients
+        averaged; :data:`DEFAULT_IDENTITY`) or "shared" (one fit of all of them together)
     landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
     smoothing_hz : cut-off of the temporal prior, Hz (0: off)
     progress : a progress bar on stderr (tqdm)
@@ -309,6 +322,8 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
 
     if int(identity_frames) < 1:
         raise InputError(f"identity frames must be >= 1, got {identity_frames}")
+    if identity not in IDENTITY_MODES:
+        raise InputError(f"identity: expected one of {', '.join(IDENTITY_MODES)}, got {identity!r}")
     if not smoothing_hz >= 0:
         raise InputError(f"smoothing must be >= 0 Hz, got {smoothing_hz}")
     describe(landmark_detector, face_detector)     # a bad choice fails before any work
@@ -318,9 +333,10 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
 
         model = load_model(str(model))
     res, _ = fit_files([path], model=model, landmark_detector=landmark_detector,
-                       face_detector=face_detector, video_frames=identity_frames)
-    identity = res.identity
-    fixed = fixed_identity_model(model, identity)
+                       face_detector=face_detector, video_frames=identity_frames,
+                       shared_identity=identity == "shared")
+    alpha = res.identity
+    fixed = fixed_identity_model(model, alpha)
     F, E = info.n_frames, model.n_expression
     rows = {"time_s": [], "tracked": [], "detected": [], "euler": [], "translation": [], "scale": [],
             "expression": [], "detector": [], "rmse": []}
@@ -395,7 +411,7 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, landmark_detecto
     for i, p in enumerate(rows["detector"]):
         if p is not None and len(p) == L:
             detector[i] = p
-    return TrackResult(identity=identity, time_s=np.array(rows["time_s"]), tracked=tracked,
+    return TrackResult(identity=alpha, time_s=np.array(rows["time_s"]), tracked=tracked,
                        detected=np.array(rows["detected"], dtype=bool), euler_deg=euler,
                        translation=translation, scale=scale, expression=expression,
                        landmarks_68_px=lm68, detector_px=detector,

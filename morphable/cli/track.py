@@ -24,7 +24,7 @@ NPZ_KEYS = ("time_s", "tracked", "detected", "euler_deg", "translation", "scale"
 
 
 def add_parser(sub):
-    from ..tracking import DEFAULT_SMOOTHING_HZ
+    from ..tracking import DEFAULT_IDENTITY, DEFAULT_SMOOTHING_HZ, IDENTITY_MODES
 
     p = sub.add_parser("track", help="track a face through a video: one identity, pose and "
                                      "expression per frame")
@@ -35,6 +35,9 @@ def add_parser(sub):
     add_detector_arguments(p)
     p.add_argument("--identity-frames", type=int, default=9, metavar="N",
                    help="frames spread uniformly for the identity fit (default 9)")
+    p.add_argument("--identity", choices=IDENTITY_MODES, default=DEFAULT_IDENTITY,
+                   help="the identity from the identity frames: one fit of them all (shared) or "
+                        f"each fitted alone and averaged (average); default {DEFAULT_IDENTITY}")
     p.add_argument("--smoothing-hz", type=float, default=DEFAULT_SMOOTHING_HZ, metavar="HZ",
                    help=f"cut-off of the temporal prior, Hz; 0: none (default {DEFAULT_SMOOTHING_HZ:g})")
     p.add_argument("--overlay-video", action="store_true",
@@ -61,6 +64,7 @@ def run(args):
         raise InputError(f"--smoothing-hz must be >= 0, got {args.smoothing_hz}")
     start = time.perf_counter()
     tr = track_video(args.video, model=model_from(args), identity_frames=args.identity_frames,
+                     identity=args.identity,
                      landmark_detector=args.landmark_detector, face_detector=args.face_detector,
                      smoothing_hz=args.smoothing_hz, progress=not args.quiet)
     seconds = time.perf_counter() - start
@@ -70,6 +74,7 @@ def run(args):
                "frames_detected": int(tr.detected.sum()), "fps": tr.fps,
                "image_size": list(tr.image_size), "identity": [float(x) for x in tr.identity],
                "smoothing_hz": args.smoothing_hz, "identity_frames": args.identity_frames,
+               "identity_mode": args.identity,
                "landmark_rmse_px": _mean(tr.landmark_rmse_px), "tracking_fps": tr.n_frames / seconds}
     if not tr.tracked.any():
         raise InputError(f"{args.video}: the face was lost in every frame")
