@@ -33,7 +33,7 @@ import numpy as np
 from .errors import FitError, InputError
 
 __all__ = ["TrackResult", "track_video", "write_track_glb", "fixed_identity_model", "carried_box",
-           "fit_frames", "chunk_frames", "smooth_trajectories", "DEFAULT_SMOOTHING_HZ",
+           "fit_frames", "chunk_frames", "smooth_trajectories", "solve_prior", "DEFAULT_SMOOTHING_HZ",
            "LOST_RMSE_FRACTION", "CHUNK_BYTES", "IDENTITY_MODES", "DEFAULT_IDENTITY"]
 
 DEFAULT_SMOOTHING_HZ = 4.0
@@ -136,8 +136,6 @@ def smooth_trajectories(values, tracked, fps: float, cutoff_hz: float = DEFAULT_
     >>> bool(abs(y[9, 0] - 0.5) < 0.2 and abs(y[0, 0]) < 0.05)
     True
     """
-    from scipy.linalg import solveh_banded
-
     values = np.asarray(values, dtype=np.float64)
     out = values.copy()
     if not cutoff_hz or cutoff_hz < 0 or not fps or cutoff_hz >= fps / 2:
@@ -149,63 +147,47 @@ def smooth_trajectories(values, tracked, fps: float, cutoff_hz: float = DEFAULT_
         n = b - a
         if n < 3:
             continue
-        out[a:b] = solveh_banded(_prior_bands(n, lam), values[a:b])
+        out[a:b] = solve_prior(values[a:b], lam)
     return out
 
 
-def _prior_bands(n: int, lam: float) -> np.ndarray:
-    """I + lam D2'D2 (n x n, D2 the (n-2, n) second difference) as the upper bands
-    ``solveh_banded`` takes: ``bands[2 - k, j] = A[j - k, j]``."""
-    c = (1.0, -2.0, 1.0)
-    bands = np.zeros((3, n))
-    rows = np.arange(n - 2)
-    for r in range(3):
-        for s in range(r, 3):
-            # row i of D2 holds c at columns i, i+1, i+2: c[r] c[s] lands on (i+r, i+s)
-            bands[2 - (s - r), rows + s] += c[r] * c[s]
-    bands *= lam
-    bands[2] += 1.0
-    return bands
+def solve_prior(values, lam: float) -> np.ndarray:
+    """Solve ``(I + lam D2'D2) x = values`` for (n, D) ``values`` (D2 the (n-2, n) second
+    difference): the pentadiagonal system of :func:`smooth_trajectories`, by its LDL'
+    factorisation (scalars, the same for every column) and two substitutions vectorised over
+    the columns. numpy alone: scipy's banded solver costs its import (about 0.4-0.9 s) once
+    per process, more than the solve of a long video. Returns (n, D) float64.
 
-
-def write_track_glb(track: TrackResult, path) -> Path:
-    """The track as an animated glTF 2.0 binary (:func:`morphable.io.gltf.write_animated_glb`).
-
-    - base mesh: the model's mean shape with the track's identity; morph targets: the model's
-      expression modes (mm per unit coefficient, named after them), so that a keyframe's
-      morph weights are the frame's expression coefficients and the mesh is exactly the
-      tracked one;
-    - the node's pose per keyframe: the frame's head rotation and translation in the camera
-      frame (x right, y up, z towards the viewer), and a uniform scale ``s / median(s)`` (s
-      the affine camera's px/mm), the translation scaled alike, so that an orthographic view
-      of ``median(s)`` px/mm, which the file's camera is (the video's frame, at (0, 0, 1 m)),
-      reproduces each frame's projection. An affine camera sees no depth: z is 0;
-    - keyframes: the tracked frames at their presentation times (s, the video's frame rate;
-      lost frames are interpolated over by viewers and listed in the animation's ``extras``).
-
-    Units in the file: metres. Returns ``path``; InputError when no frame was tracked.
+    >>> x = solve_prior(np.eye(5)[:, :1] * 5, 1.0)
+    >>> bool(np.allclose((np.eye(5) + np.diff(np.eye(5), 2, 0).T @ np.diff(np.eye(5), 2, 0)) @ x,
+    ...                  np.eye(5)[:, :1] * 5))
+    True
     """
-    from .camera import euler_to_matrix
-    from .io.gltf import write_animated_glb
-
-    if track.fit is None or not track.tracked.any():
-        raise InputError(f"{path}: no tracked frame to animate")
-    ok = track.tracked
-    model = track.fit.model
-    s = track.scale[ok]
-    ref = float(np.median(s))
-    k = s / ref
-    moved = track.translation[ok] * k[:, None]
-    moved[:, 2] = 0.0
-    W, H = track.image_size
-    extras = {"frames": [int(i) for i in np.flatnonzero(ok)],
-              "frames_lost": [int(i) for i in np.flatnonzero(~ok)], "fps": float(track.fps),
-              "image_size": [int(W), int(H)], "px_per_mm": ref, "units": "metres"}
-    return write_animated_glb(path, model.mean, model.triangles, track.time_s[ok],
-                              euler_to_matrix(*track.euler_deg[ok].T), moved, k,
-                              targets=model.expression_basis, weights=track.expression[ok],
-                              target_names=model.expression_names,
-                              orthographic_mm=(W / (2 * ref), H / (2 * ref)), extras=extras)
+    y = np.array(values, dtype=np.float64)
+    n = len(y)
+    # the bands of A = I + lam D2'D2: row i of D2 holds (1, -2, 1) at columns i, i+1, i+2
+    c, rows = (1.0, -2.0, 1.0), np.arange(n - 2)
+    d0, d1 = np.zeros(n), np.zeros(n - 1)
+    for r in range(3):
+        np.add.at(d0, rows + r, c[r] * c[r])
+        if r < 2:
+            np.add.at(d1, rows + r, c[r] * c[r + 1])
+    d0, d1, d2 = 1.0 + lam * d0, lam * d1, np.full(n - 2, lam * c[0] * c[2])
+    D, l1, l2 = np.zeros(n), np.zeros(n), np.zeros(n)     # A = L diag(D) L', L unit banded
+    d0, d1, d2 = d0.tolist(), d1.tolist() + [0.0], d2.tolist() + [0.0, 0.0]
+    Dp = Dpp = l1p = l2p = l2pp = 0.0   # D[i-1], D[i-2], l1[i-1], l2[i-1], l2[i-2]
+    for i in range(n):
+        Di = d0[i] - l1p * l1p * Dp - l2pp * l2pp * Dpp
+        D[i] = Di
+        l1[i] = (d1[i] - l2p * l1p * Dp) / Di       # L[i+1, i]
+        l2[i] = d2[i] / Di                          # L[i+2, i]
+        Dpp, Dp, l2pp, l2p, l1p = Dp, Di, l2p, l2[i], l1[i]
+    for i in range(1, n):                           # L z = y
+        y[i] -= l1[i - 1] * y[i - 1] + (l2[i - 2] * y[i - 2] if i > 1 else 0.0)
+    y /= D[:, None]
+    for i in range(n - 2, -1, -1):                  # L' x = z / D
+        y[i] -= l1[i] * y[i + 1] + (l2[i] * y[i + 2] if i < n - 2 else 0.0)
+    return y
 
 
 IDENTITY_MODES = ("shared", "average")

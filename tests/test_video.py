@@ -299,3 +299,14 @@ def test_temporal_prior_removes_jitter_and_keeps_the_motion():
     err = lambda x: np.sqrt(((x - truth)[tracked] ** 2).mean())   # noqa: E731
     assert err(smooth) < 0.6 * err(measured)
     np.testing.assert_array_equal(smooth_trajectories(measured, tracked, fps, cutoff_hz=0), measured)
+
+
+@pytest.mark.parametrize("n", [3, 4, 7, 200])
+def test_prior_solve_matches_the_dense_system(n):
+    from morphable.tracking import solve_prior
+
+    D2 = np.diff(np.eye(n), 2, axis=0)
+    y = np.random.default_rng(n).normal(size=(n, 5))
+    for lam in (0.3, 40.0, 2e4):
+        np.testing.assert_allclose(solve_prior(y, lam), np.linalg.solve(np.eye(n) + lam * D2.T @ D2, y),
+                                   rtol=1e-9, atol=1e-9 * lam)
