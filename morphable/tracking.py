@@ -190,6 +190,46 @@ def solve_prior(values, lam: float) -> np.ndarray:
     return y
 
 
+def write_track_glb(track: TrackResult, path) -> Path:
+    """The track as an animated glTF 2.0 binary (:func:`morphable.io.gltf.write_animated_glb`).
+
+    - base mesh: the model's mean shape with the track's identity; morph targets: the model's
+      expression modes (mm per unit coefficient, named after them), so that a keyframe's
+      morph weights are the frame's expression coefficients and the mesh is exactly the
+      tracked one;
+    - the node's pose per keyframe: the frame's head rotation and translation in the camera
+      frame (x right, y up, z towards the viewer), and a uniform scale ``s / median(s)`` (s
+      the affine camera's px/mm), the translation scaled alike, so that an orthographic view
+      of ``median(s)`` px/mm, which the file's camera is (the video's frame, at (0, 0, 1 m)),
+      reproduces each frame's projection. An affine camera sees no depth: z is 0;
+    - keyframes: the tracked frames at their presentation times (s, the video's frame rate;
+      lost frames are interpolated over by viewers and listed in the animation's ``extras``).
+
+    Units in the file: metres. Returns ``path``; InputError when no frame was tracked.
+    """
+    from .camera import euler_to_matrix
+    from .io.gltf import write_animated_glb
+
+    if track.fit is None or not track.tracked.any():
+        raise InputError(f"{path}: no tracked frame to animate")
+    ok = track.tracked
+    model = track.fit.model
+    s = track.scale[ok]
+    ref = float(np.median(s))
+    k = s / ref
+    moved = track.translation[ok] * k[:, None]
+    moved[:, 2] = 0.0
+    W, H = track.image_size
+    extras = {"frames": [int(i) for i in np.flatnonzero(ok)],
+              "frames_lost": [int(i) for i in np.flatnonzero(~ok)], "fps": float(track.fps),
+              "image_size": [int(W), int(H)], "px_per_mm": ref, "units": "metres"}
+    return write_animated_glb(path, model.mean, model.triangles, track.time_s[ok],
+                              euler_to_matrix(*track.euler_deg[ok].T), moved, k,
+                              targets=model.expression_basis, weights=track.expression[ok],
+                              target_names=model.expression_names,
+                              orthographic_mm=(W / (2 * ref), H / (2 * ref)), extras=extras)
+
+
 IDENTITY_MODES = ("shared", "average")
 """How :func:`track_video` makes the video's identity from its identity frames."""
 
@@ -270,10 +310,21 @@ def fit_frames(fixed, points, image_size) -> list:
             for i in ids:
                 out[i] = fit_frames(fixed, [points[i]], image_size)[0]
             continue
-        for i, f in zip(ids, fits):
-            face = np.linalg.norm(np.nanmax(points[i], 0) - np.nanmin(points[i], 0))
-            if f[2] <= LOST_RMSE_FRACTION * face:
-                out[i] = f
+        good = [i for i, f in zip(ids, fits)
+                if f[2] <= LOST_RMSE_FRACTION * np.linalg.norm(np.nanmax(points[i], 0) - np.nanmin(points[i], 0))]
+        if len(good) < len(ids) and good:
+            # frames fitted together are not quite independent where one of them fails (the
+            # fitter's iterations run on while it does; 1e-3 rad on the others): the good ones
+            # again, without it, so that a frame's fit does not depend on its neighbours
+            refit = fit_frames(fixed, [points[i] for i in good], image_size)
+            if all(f is not None for f in refit):
+                fits = dict(zip(good, refit))
+            else:
+                fits = {i: fit_frames(fixed, [points[i]], image_size)[0] for i in good}
+        else:
+            fits = dict(zip(ids, fits))
+        for i in good:
+            out[i] = fits[i]
     return out
 
 

@@ -310,3 +310,26 @@ def test_prior_solve_matches_the_dense_system(n):
     for lam in (0.3, 40.0, 2e4):
         np.testing.assert_allclose(solve_prior(y, lam), np.linalg.solve(np.eye(n) + lam * D2.T @ D2, y),
                                    rtol=1e-9, atol=1e-9 * lam)
+
+
+def test_batched_fits_equal_one_fit_per_frame_and_refuse_points_without_a_face(sfm):
+    from morphable.camera import Camera
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.tracking import fit_frames, fixed_identity_model
+
+    rng = np.random.default_rng(3)
+    fixed = fixed_identity_model(sfm, rng.normal(0, 1, sfm.n_identity))
+    points = [Camera.looking_at_face(image_size=(640, 480), yaw=y, pitch=p).project(fixed.landmark_positions())
+              + rng.normal(0, 1.5, (68, 2)) for y, p in ((0, 0), (25, -5), (-30, 10), (10, 20))]
+    points[2] = rng.uniform(100, 400, (68, 2))      # points scattered in a box without a face
+    points.insert(1, None)
+    fits = fit_frames(fixed, points, (640, 480))
+    assert fits[1] is None and fits[3] is None
+    for i in (0, 2, 4):
+        one = fit_landmarks(fixed, points[i], (640, 480), n_identity=0, model_std_mm=DETECTED_MODEL_STD_MM)
+        cam, expression, rmse = fits[i]
+        np.testing.assert_allclose(cam.rotation, one.cameras[0].rotation, atol=1e-9)
+        np.testing.assert_allclose(cam.translation, one.cameras[0].translation, atol=1e-7)
+        np.testing.assert_allclose(expression, one.expression[0], atol=1e-9)
+        assert rmse == pytest.approx(float(one.landmark_rmse_px[0]), rel=1e-9) and rmse < 4
