@@ -333,3 +333,17 @@ def test_batched_fits_equal_one_fit_per_frame_and_refuse_points_without_a_face(s
         np.testing.assert_allclose(cam.translation, one.cameras[0].translation, atol=1e-7)
         np.testing.assert_allclose(expression, one.expression[0], atol=1e-9)
         assert rmse == pytest.approx(float(one.landmark_rmse_px[0]), rel=1e-9) and rmse < 4
+
+
+def test_bench_video_averages_subjects_and_refuses_no_subjects(capsys):
+    from evaluation.bench_video import main, mean_tracking
+
+    def run(shape, lost):
+        return {"indoor": {"image_size": [512, 512], "rows": {
+            "track": {"shape_mm": shape, "jitter_mm": 2 * shape, "frames_lost": lost}}}}
+
+    mean = mean_tracking([run(1.0, 1), run(2.0, 0), run(4.5, 2)])
+    assert mean["indoor"]["n"] == 3
+    assert mean["indoor"]["rows"]["track"] == {"shape_mm": 2.5, "jitter_mm": 5.0, "frames_lost": 3}
+    assert main(["--florence", "--subjects", "ict", "--n-scans", "0"]) == 2
+    assert capsys.readouterr().err.strip().endswith("--n-scans must be >= 1, got 0")
