@@ -19,9 +19,21 @@ fit and the model load, as the command runs. Peak memory (``--rss-frames``): the
 (``VmHWM``) of a process that streams a 3840 x 2160 video (the test video's frames tiled) through
 :func:`morphable.video.iter_frames`, for a video and one four times as long.
 
+Rows are timed in frames per second and in CPU milliseconds per frame (the process's CPU time,
+all threads), after the detector's one-off load (paid once per process, printed apart).
+
+``--florence``: rendered Florence videos (:mod:`evaluation.videos`, 30 frames/s, H.264) of
+james's scan and/or of the photo-dressed validation subjects (``--subjects james ict sfm``,
+``--n-scans`` of each model, :func:`validation_subjects`), tracked and compared with the
+truth: shape per frame (the Florence metric), head rotation, jitter against the truth's own,
+for the track (averaged identity, prior at 4 Hz), without the prior, with the shared identity,
+and per-frame fits; the validation figures are means over the subjects.
+
 Run::
 
     python -m evaluation.bench_video --frames 300 --rss-frames 30 --report reports/bench_video.json
+    python -m evaluation.bench_video --florence --subjects james ict sfm --n-scans 4 --frames 30 \
+        --report reports/bench_video_florence_validation.json
 """
 from __future__ import annotations
 
