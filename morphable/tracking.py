@@ -223,7 +223,9 @@ def write_track_glb(track: TrackResult, path) -> Path:
     extras = {"frames": [int(i) for i in np.flatnonzero(ok)],
               "frames_lost": [int(i) for i in np.flatnonzero(~ok)], "fps": float(track.fps),
               "image_size": [int(W), int(H)], "px_per_mm": ref, "units": "metres"}
-    return write_animated_glb(path, model.mean, model.triangles, track.time_s[ok],
+    # glTF's times start at 0 s or later; a container may start a video before 0
+    times = track.time_s[ok] - min(0.0, float(np.nanmin(track.time_s)))
+    return write_animated_glb(path, model.mean, model.triangles, times,
                               euler_to_matrix(*track.euler_deg[ok].T), moved, k,
                               targets=model.expression_basis, weights=track.expression[ok],
                               target_names=model.expression_names,

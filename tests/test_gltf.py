@@ -77,6 +77,7 @@ def test_static_mesh_without_targets(tmp_path):
 
 @pytest.mark.parametrize("change, message", [
     (dict(times_s=np.r_[0.0, 0.04, 0.04, 0.1, 0.2, 0.3]), "keyframe times must increase strictly"),
+    (dict(times_s=np.arange(6) / 25.0 - 0.1), "from 0 s or later"),
     (dict(weights=np.full((6, 2), np.nan)), "non-finite values"),
     (dict(rotations=np.eye(3)[None]), "need F >= 1 keyframes"),
     (dict(targets=np.zeros((2, 4, 3))), "targets must be (E, 5, 3)"),

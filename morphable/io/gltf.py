@@ -92,7 +92,7 @@ def write_animated_glb(path, vertices, triangles, times_s, rotations, translatio
     path : output ``.glb``
     vertices : (V, 3) base mesh, mm
     triangles : (T, 3) int, counter-clockwise seen from outside
-    times_s : (F,) strictly increasing keyframe times, s
+    times_s : (F,) strictly increasing keyframe times, s, the first >= 0 (glTF's rule)
     rotations : (F, 3, 3) the node's rotation at each keyframe (mesh -> scene)
     translations_mm : (F, 3) the node's translation, mm
     scales : (F,) the node's uniform scale (dimensionless), default 1
@@ -133,8 +133,8 @@ def write_animated_glb(path, vertices, triangles, times_s, rotations, translatio
         problem = f"targets must be (E, {len(V)}, 3) with weights (F, E) and E names, got {D.shape}, {W.shape}"
     elif not all(np.isfinite(a).all() for a in (V, t, R, T, S, D, W)):
         problem = "non-finite values (NaN or inf)"
-    elif np.any(np.diff(t) <= 0):
-        problem = "keyframe times must increase strictly"
+    elif np.any(np.diff(t) <= 0) or t[0] < 0:
+        problem = "keyframe times must increase strictly from 0 s or later"
     elif orthographic_mm is not None and not (np.all(np.asarray(orthographic_mm) > 0) and camera_distance_mm > 0):
         problem = "the orthographic camera needs positive magnifications and distance"
     if problem:
