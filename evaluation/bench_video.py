@@ -19,9 +19,21 @@ fit and the model load, as the command runs. Peak memory (``--rss-frames``): the
 (``VmHWM``) of a process that streams a 3840 x 2160 video (the test video's frames tiled) through
 :func:`morphable.video.iter_frames`, for a video and one four times as long.
 
+Rows are timed in frames per second and in CPU milliseconds per frame (the process's CPU time,
+all threads), after the detector's one-off load (paid once per process, printed apart).
+
+``--florence``: rendered Florence videos (:mod:`evaluation.videos`, 30 frames/s, H.264) of
+james's scan and/or of the photo-dressed validation subjects (``--subjects james ict sfm``,
+``--n-scans`` of each model, :func:`validation_subjects`), tracked and compared with the
+truth: shape per frame (the Florence metric), head rotation, jitter against the truth's own,
+for the track (averaged identity, prior at 4 Hz), without the prior, with the shared identity,
+and per-frame fits; the validation figures are means over the subjects.
+
 Run::
 
     python -m evaluation.bench_video --frames 300 --rss-frames 30 --report reports/bench_video.json
+    python -m evaluation.bench_video --florence --subjects james ict sfm --n-scans 4 --frames 30 \
+        --report reports/bench_video_florence_validation.json
 """
 from __future__ import annotations
 
@@ -35,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from morphable.errors import one_line_errors
+from morphable.errors import InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -65,6 +77,23 @@ def make_video(path, n: int):
     offsets = window_path(n)
     write_video(path, (photo[y:y + 480, x:x + 640] for x, y in offsets), fps=FPS)
     return pts[None] - offsets[:, None, :]
+
+
+def timed(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` -> (its result, wall-clock s, CPU s of this process, all its
+    threads): the CPU time tells a change apart on cores that other jobs share."""
+    t, c = time.perf_counter(), time.process_time()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t, time.process_time() - c
+
+
+def load_detector(clip) -> float:
+    """Run the default detector once on the first frame of ``clip`` -> seconds: its one-off
+    load (mediapipe's import and graph), paid once per process, so that no timed row pays it."""
+    from morphable.detection import detect_landmarks
+    from morphable.video import iter_frames
+
+    return timed(detect_landmarks, next(iter(iter_frames(clip))).image)[1]
 
 
 def jitter(points) -> float:
@@ -146,24 +175,24 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
     ``n_frames`` per condition) -> {condition: {row: figures}}; the mp4 files stay in ``work``.
 
     Rows: ``truth`` (its rigid motion), ``track`` (prior at 4 Hz), ``track, no prior``,
-    ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
+    ``track, identity shared`` (prior at 4 Hz, ``identity="shared"``), ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
     ``rotation_deg`` (mean angle from the true head rotation), ``jitter_mm`` (vertex
     acceleration, :func:`vertex_jitter`, of the face turned and moved in the image plane),
     ``frames_per_s``, ``frames_lost``."""
     from evaluation.videos import synthetic_video, write_rendered_video
     from morphable.camera import euler_to_matrix
-    from morphable.tracking import track_video
+    from morphable.tracking import DEFAULT_IDENTITY, track_video
 
     out = {}
     for c in conditions:
         video = synthetic_video(scan, c, model.landmark_positions(), n_frames=n_frames, seed=seed)
         clip = write_rendered_video(scan, video, work / f"{c}.mp4", seed=seed)
         true_rot = np.stack([euler_to_matrix(*p) for p in video.poses_deg])
+        load_detector(clip)     # once per process: no timed row pays the detector's load
         rows, neutral = {}, None
-        for name, hz in (("track", 4.0), ("track, no prior", 0.0)):
-            t = time.perf_counter()
-            tr = track_video(clip, model=model, smoothing_hz=hz)
-            seconds = time.perf_counter() - t
+        for name, hz, how in (("track", 4.0, DEFAULT_IDENTITY), ("track, no prior", 0.0, DEFAULT_IDENTITY),
+                              ("track, identity shared", 4.0, "shared")):
+            tr, seconds, cpu = timed(track_video, clip, model=model, smoothing_hz=hz, identity=how)
             ok = tr.tracked
             meshes = np.full((n_frames, model.n_vertices, 3), np.nan)
             meshes[ok] = tr.fit.vertices()
@@ -173,10 +202,9 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
             rows[name] = {"shape_mm": float(shape_errors(model, meshes[ok], scan).mean()),
                           "rotation_deg": float(np.nanmean(rotation_error_deg(rot, true_rot))),
                           "jitter_mm": jitter(camera_vertices(rot, meshes, tr.translation[:, :2])),
-                          "frames_per_s": n_frames / seconds, "frames_lost": int((~ok).sum())}
-        t = time.perf_counter()
-        single = per_frame_results(clip, model)
-        seconds = time.perf_counter() - t
+                          "frames_per_s": n_frames / seconds, "cpu_ms_per_frame": 1e3 * cpu / n_frames,
+                          "frames_lost": int((~ok).sum())}
+        single, seconds, cpu = timed(per_frame_results, clip, model)
         ok = np.array([r is not None for r in single])
         meshes = np.full((n_frames, model.n_vertices, 3), np.nan)
         rot = np.full((n_frames, 3, 3), np.nan)
@@ -187,7 +215,8 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
         rows["per-frame fits"] = {"shape_mm": float(shape_errors(model, meshes[ok], scan).mean()),
                                   "rotation_deg": float(np.nanmean(rotation_error_deg(rot, true_rot))),
                                   "jitter_mm": jitter(camera_vertices(rot, meshes, shift)),
-                                  "frames_per_s": n_frames / seconds, "frames_lost": int((~ok).sum())}
+                                  "frames_per_s": n_frames / seconds,
+                                  "cpu_ms_per_frame": 1e3 * cpu / n_frames, "frames_lost": int((~ok).sum())}
         # the truth: the scan is rigid, the face turns with the head (the tracked identity's
         # vertices, so that the vertex set is the same); the head's centre does not move
         rows = {"truth": {"jitter_mm": jitter(camera_vertices(true_rot, neutral))}, **rows}
@@ -218,35 +247,94 @@ def florence_protocol_on_videos(scan, model, clips: dict, methods, n_frames: int
     return out
 
 
+APPEARANCES = ("image_0010.png", "takeo.ppm", "breakingbad.jpg", "einstein.jpg")
+"""The photos whose colours the validation subjects wear in turn (``shared/data/images``), as
+``evaluation.florence --synthetic-scan ... --appearance`` dresses them in docs/evaluation.md."""
+
+
+def validation_subjects(scan_model, n_scans: int, photos, scan_seed: int = 100):
+    """The photo-dressed validation subjects of ``evaluation.florence --synthetic-scan NAME
+    --n-scans N --appearance PHOTOS``: subjects sampled from ``scan_model``
+    (:func:`evaluation.scans.model_scan`, seeds ``scan_seed``...) wearing the colours of
+    ``photos`` in turn (:func:`evaluation.scans.photo_colors`) -> generator of Scans, mm."""
+    from evaluation.scans import model_scan, photo_colors
+
+    looks = [photo_colors(scan_model, p) for p in photos]
+    for i in range(n_scans):
+        yield model_scan(scan_model, scan_seed + i, colors=looks[i % len(looks)])
+
+
+def mean_tracking(runs) -> dict:
+    """{condition: {row: figures}} of several subjects -> the same, each figure the mean over
+    the subjects (``frames_lost``: the sum), with ``n`` the subjects averaged."""
+    runs = list(runs)
+    out = {}
+    for c in runs[0]:
+        rows = {}
+        for name in runs[0][c]["rows"]:
+            cells = [r[c]["rows"][name] for r in runs]
+            rows[name] = {k: (int(sum(x[k] for x in cells)) if k == "frames_lost"
+                              else float(np.mean([x[k] for x in cells]))) for k in cells[0]}
+        out[c] = {"image_size": runs[0][c]["image_size"], "rows": rows, "n": len(runs)}
+    return out
+
+
+def print_tracking(title: str, tracking: dict) -> None:
+    print(title)
+    print(f"{'':26s} {'shape mm':>9s} {'rotation °':>10s} {'jitter mm/frame²':>17s} {'frames/s':>9s} "
+          f"{'CPU ms/frame':>13s} {'lost':>5s}")
+    for c, r in tracking.items():
+        for name, x in r["rows"].items():
+            print(f"{c + ' ' + name:26s} {x.get('shape_mm', float('nan')):9.3f} "
+                  f"{x.get('rotation_deg', float('nan')):10.2f} {x['jitter_mm']:17.4f} "
+                  f"{x.get('frames_per_s', float('nan')):9.1f} {x.get('cpu_ms_per_frame', float('nan')):13.1f} "
+                  f"{x.get('frames_lost', 0):5d}")
+
+
 def florence_main(args) -> int:
-    """``--florence``: the benchmark on rendered Florence videos of james."""
+    """``--florence``: the benchmark on rendered Florence videos of james and/or of the
+    photo-dressed validation subjects (``--subjects``)."""
     from evaluation.florence.protocol import format_table
     from evaluation.scans import load_scan
     from morphable import load_model
 
-    scan = load_scan(DATA / "scans" / "james" / "james.obj", DATA / "scans" / "james" / "james.ljson")
     model = load_model("sfm")
     work = Path(tempfile.mkdtemp(prefix="bench_video."))
-    report = {"tracking": florence_tracking(scan, model, args.conditions, args.frames, work)}
-    print(f"rendered Florence videos of james, {args.frames} frames each, 30 frames/s")
-    print(f"{'':26s} {'shape mm':>9s} {'rotation °':>10s} {'jitter mm/frame²':>17s} {'frames/s':>9s} {'lost':>5s}")
-    for c, r in report["tracking"].items():
-        for name, x in r["rows"].items():
-            print(f"{c + ' ' + name:26s} {x.get('shape_mm', float('nan')):9.3f} "
-                  f"{x.get('rotation_deg', float('nan')):10.2f} {x['jitter_mm']:17.4f} "
-                  f"{x.get('frames_per_s', float('nan')):9.1f} {x.get('frames_lost', 0):5d}")
-    if args.florence_methods:
-        clips = {c: work / f"{c}.mp4" for c in args.conditions}
-        runs = florence_protocol_on_videos(scan, model, clips, args.florence_methods, args.frames)
-        report["florence"] = runs
-        for name in ("detect", "detect, affine", "videos"):
-            print(f"\n{name}:\n" + format_table(runs[name]))
-        print("\nmedian distance between the detections on the rendered frames and on the mp4 "
-              "frames, px: " + ", ".join(f"{c} {v:.2f}" for c, v in runs["landmark_shift_px"].items()))
-    _write_report(args.report, report)
-    for f in work.iterdir():
-        f.unlink()
-    work.rmdir()
+    report = {}
+    try:
+        for subject in args.subjects:
+            if subject != "james":
+                scan_model = load_model(subject)
+                photos = [Path(p) for p in args.appearance] if args.appearance else [
+                    DATA / "images" / p for p in APPEARANCES]
+                runs = []
+                for k, scan in enumerate(validation_subjects(scan_model, args.n_scans, photos)):
+                    runs.append(florence_tracking(scan, model, args.conditions, args.frames, work))
+                    print_tracking(f"{subject} subject {k} ({scan.source}), {args.frames} frames each",
+                                   runs[-1])
+                report[subject] = {"subjects": runs, "mean": mean_tracking(runs),
+                                   "appearance": [p.name for p in photos]}
+                print_tracking(f"\n{subject}: mean over {args.n_scans} photo-dressed subjects "
+                               f"({', '.join(p.name for p in photos)} in turn), {args.frames} frames "
+                               "each, 30 frames/s", report[subject]["mean"])
+                continue
+            scan = load_scan(DATA / "scans" / "james" / "james.obj", DATA / "scans" / "james" / "james.ljson")
+            report["tracking"] = florence_tracking(scan, model, args.conditions, args.frames, work)
+            print_tracking(f"rendered Florence videos of james, {args.frames} frames each, 30 frames/s",
+                           report["tracking"])
+            if args.florence_methods:
+                clips = {c: work / f"{c}.mp4" for c in args.conditions}
+                runs = florence_protocol_on_videos(scan, model, clips, args.florence_methods, args.frames)
+                report["florence"] = runs
+                for name in ("detect", "detect, affine", "videos"):
+                    print(f"\n{name}:\n" + format_table(runs[name]))
+                print("\nmedian distance between the detections on the rendered frames and on the mp4 "
+                      "frames, px: " + ", ".join(f"{c} {v:.2f}" for c, v in runs["landmark_shift_px"].items()))
+        _write_report(args.report, report)
+    finally:
+        for f in work.iterdir():
+            f.unlink()
+        work.rmdir()
     return 0
 
 
@@ -266,7 +354,15 @@ def main(argv=None) -> int:
                    help="4K memory test: a video of this many frames and one 4 times as long (0: skip)")
     p.add_argument("--report", help="JSON report")
     p.add_argument("--florence", action="store_true",
-                   help="instead: track rendered Florence videos of james (--frames per condition)")
+                   help="instead: track rendered Florence videos (--frames per condition) of --subjects")
+    p.add_argument("--subjects", nargs="+", default=["james"], choices=["james", "ict", "sfm"],
+                   help="--florence: james's scan, and/or the photo-dressed validation subjects "
+                        "sampled from ict or sfm (default james)")
+    p.add_argument("--n-scans", type=int, default=8,
+                   help="--florence: validation subjects per model (seeds 100...; default 8)")
+    p.add_argument("--appearance", nargs="+", metavar="PHOTO",
+                   help="--florence: photos the validation subjects wear in turn (default "
+                        + ", ".join(APPEARANCES) + " in shared/data/images)")
     p.add_argument("--conditions", nargs="+", default=["cooperative", "indoor", "outdoor"],
                    help="--florence: conditions")
     p.add_argument("--florence-methods", nargs="*", default=[],
@@ -275,6 +371,8 @@ def main(argv=None) -> int:
     add_verbosity_arguments(p)
     args = p.parse_args(argv)
     configure(verbosity(args))
+    if args.n_scans < 1:
+        raise InputError(f"--n-scans must be >= 1, got {args.n_scans}")
     if args.florence:
         return florence_main(args)
 
@@ -290,18 +388,17 @@ def main(argv=None) -> int:
     n = sum(1 for _ in iter_frames(clip))
     decode_fps = n / (time.perf_counter() - t)
     rows = {"truth": {"jitter_px": jitter(truth)}}
+    detector_s = load_detector(clip)
     for name, hz in (("track", 4.0), ("track, no prior", 0.0)):
-        t = time.perf_counter()
-        tr = track_video(clip, model=model, smoothing_hz=hz)
-        seconds = time.perf_counter() - t
+        tr, seconds, cpu = timed(track_video, clip, model=model, smoothing_hz=hz)
         rows[name] = {"error_px": error(tr.landmarks_68_px, truth), "jitter_px": jitter(tr.landmarks_68_px),
-                      "frames_per_s": n / seconds, "frames_lost": int((~tr.tracked).sum()),
-                      "face_detector_runs": int(tr.detected.sum())}
-    t = time.perf_counter()
-    single = per_frame_fits(clip, model)
+                      "frames_per_s": n / seconds, "cpu_ms_per_frame": 1e3 * cpu / n,
+                      "frames_lost": int((~tr.tracked).sum()), "face_detector_runs": int(tr.detected.sum())}
+    single, seconds, cpu = timed(per_frame_fits, clip, model)
     rows["per-frame fits"] = {"error_px": error(single, truth), "jitter_px": jitter(single),
-                              "frames_per_s": n / (time.perf_counter() - t)}
-    report = {"frames": n, "size": [640, 480], "decode_fps": decode_fps, "rows": rows}
+                              "frames_per_s": n / seconds, "cpu_ms_per_frame": 1e3 * cpu / n}
+    report = {"frames": n, "size": [640, 480], "decode_fps": decode_fps, "detector_load_s": detector_s,
+              "rows": rows}
     if args.rss_frames:
         first = next(iter_frames(clip)).image
         big = np.tile(first, (5, 6, 1))[:2160, :3840]
@@ -312,11 +409,12 @@ def main(argv=None) -> int:
             rss[k] = peak_rss_mb(path)
             path.unlink()
         report["peak_rss_mb_4k"] = rss
-    print(f"{n} frames 640x480: decoding {decode_fps:.0f} frames/s")
-    print(f"{'':18s} {'error px':>9s} {'jitter px/frame²':>17s} {'frames/s':>9s}")
+    print(f"{n} frames 640x480: decoding {decode_fps:.0f} frames/s; the detector's one-off load "
+          f"{detector_s:.2f} s (before the timed rows)")
+    print(f"{'':18s} {'error px':>9s} {'jitter px/frame²':>17s} {'frames/s':>9s} {'CPU ms/frame':>13s}")
     for name, r in rows.items():
         print(f"{name:18s} {r.get('error_px', float('nan')):9.2f} {r['jitter_px']:17.3f} "
-              f"{r.get('frames_per_s', float('nan')):9.1f}")
+              f"{r.get('frames_per_s', float('nan')):9.1f} {r.get('cpu_ms_per_frame', float('nan')):13.1f}")
     if args.rss_frames:
         print("peak RSS streaming 3840x2160: " + ", ".join(f"{k} frames {v:.0f} MB"
                                                           for k, v in report["peak_rss_mb_4k"].items()))

@@ -213,7 +213,7 @@ def test_fit_video_errors(face_clip):
 def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(face_clip):
     import json
 
-    r = _cli(["track", "face.mp4", "--out", "trk", "--overlay-video", "-q"], face_clip)
+    r = _cli(["track", "face.mp4", "--out", "trk", "--overlay-video", "--animated-mesh", "-q"], face_clip)
     assert r.returncode == 0, r.stderr
     summary = json.loads((face_clip / "trk" / "track.json").read_text())
     assert summary["frames"] == 12 and summary["frames_lost"] == [3, 4] and summary["fps"] == pytest.approx(30)
@@ -232,6 +232,37 @@ def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(f
     slope = np.polyfit(np.flatnonzero(ok), x, 1)[0]
     assert slope == pytest.approx(2.0, abs=0.4)
     assert probe(face_clip / "trk" / "overlay.mp4").n_frames == 12
+    _check_track_glb(face_clip / "trk" / "track.glb", t)
+
+
+def _check_track_glb(path, t):
+    """The animated mesh: one keyframe per tracked frame at its time, and each keyframe's scene
+    seen through the file's orthographic camera lands where the track's camera puts the
+    tracked mesh in the video frame (px)."""
+    from glb_reader import animated_vertices, read_glb
+
+    from morphable import load_model
+    from morphable.camera import Camera, euler_to_matrix
+
+    doc, acc = read_glb(path)
+    model = load_model("sfm")
+    ok = np.flatnonzero(t["tracked"])
+    anim = doc["animations"][0]
+    np.testing.assert_allclose(acc(anim["samplers"][0]["input"])[:, 0], t["time_s"][ok], rtol=1e-6)
+    assert anim["extras"]["frames_lost"] == [3, 4] and anim["extras"]["frames"] == ok.tolist()
+    prim = doc["meshes"][0]["primitives"][0]
+    assert acc(prim["attributes"]["POSITION"]).shape == (model.n_vertices, 3)
+    assert len(prim["targets"]) == model.n_expression
+    assert doc["meshes"][0]["extras"]["targetNames"] == list(model.expression_names)
+    cam = doc["cameras"][0]["orthographic"]
+    W, H = (int(x) for x in t["image_size"])
+    for k, f in enumerate(ok):
+        truth = Camera(kind="affine", rotation=euler_to_matrix(*t["euler_deg"][f]),
+                       translation=t["translation"][f], scale=t["scale"][f], image_size=(W, H)).project(
+            model.vertices(t["identity"], t["expression"][f]))
+        v = animated_vertices(doc, acc, k)
+        px = np.c_[(W - 1) / 2 + v[:, 0] / cam["xmag"] * W / 2, (H - 1) / 2 - v[:, 1] / cam["ymag"] * H / 2]
+        np.testing.assert_allclose(px, truth, atol=0.02)
 
 
 def test_track_bad_inputs_write_nothing(face_clip):
@@ -268,3 +299,51 @@ def test_temporal_prior_removes_jitter_and_keeps_the_motion():
     err = lambda x: np.sqrt(((x - truth)[tracked] ** 2).mean())   # noqa: E731
     assert err(smooth) < 0.6 * err(measured)
     np.testing.assert_array_equal(smooth_trajectories(measured, tracked, fps, cutoff_hz=0), measured)
+
+
+@pytest.mark.parametrize("n", [3, 4, 7, 200])
+def test_prior_solve_matches_the_dense_system(n):
+    from morphable.tracking import solve_prior
+
+    D2 = np.diff(np.eye(n), 2, axis=0)
+    y = np.random.default_rng(n).normal(size=(n, 5))
+    for lam in (0.3, 40.0, 2e4):
+        np.testing.assert_allclose(solve_prior(y, lam), np.linalg.solve(np.eye(n) + lam * D2.T @ D2, y),
+                                   rtol=1e-9, atol=1e-9 * lam)
+
+
+def test_batched_fits_equal_one_fit_per_frame_and_refuse_points_without_a_face(sfm):
+    from morphable.camera import Camera
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.tracking import fit_frames, fixed_identity_model
+
+    rng = np.random.default_rng(3)
+    fixed = fixed_identity_model(sfm, rng.normal(0, 1, sfm.n_identity))
+    points = [Camera.looking_at_face(image_size=(640, 480), yaw=y, pitch=p).project(fixed.landmark_positions())
+              + rng.normal(0, 1.5, (68, 2)) for y, p in ((0, 0), (25, -5), (-30, 10), (10, 20))]
+    points[2] = rng.uniform(100, 400, (68, 2))      # points scattered in a box without a face
+    points.insert(1, None)
+    fits = fit_frames(fixed, points, (640, 480))
+    assert fits[1] is None and fits[3] is None
+    for i in (0, 2, 4):
+        one = fit_landmarks(fixed, points[i], (640, 480), n_identity=0, model_std_mm=DETECTED_MODEL_STD_MM)
+        cam, expression, rmse = fits[i]
+        np.testing.assert_allclose(cam.rotation, one.cameras[0].rotation, atol=1e-9)
+        np.testing.assert_allclose(cam.translation, one.cameras[0].translation, atol=1e-7)
+        np.testing.assert_allclose(expression, one.expression[0], atol=1e-9)
+        assert rmse == pytest.approx(float(one.landmark_rmse_px[0]), rel=1e-9) and rmse < 4
+
+
+def test_bench_video_averages_subjects_and_refuses_no_subjects(capsys):
+    from evaluation.bench_video import main, mean_tracking
+
+    def run(shape, lost):
+        return {"indoor": {"image_size": [512, 512], "rows": {
+            "track": {"shape_mm": shape, "jitter_mm": 2 * shape, "frames_lost": lost}}}}
+
+    mean = mean_tracking([run(1.0, 1), run(2.0, 0), run(4.5, 2)])
+    assert mean["indoor"]["n"] == 3
+    assert mean["indoor"]["rows"]["track"] == {"shape_mm": 2.5, "jitter_mm": 5.0, "frames_lost": 3}
+    assert main(["--florence", "--subjects", "ict", "--n-scans", "0"]) == 2
+    assert capsys.readouterr().err.strip().endswith("--n-scans must be >= 1, got 0")

@@ -2,7 +2,8 @@
 
 Writes ``DIR/track.npz`` (per-frame arrays, :class:`morphable.tracking.TrackResult`) and
 ``DIR/track.json`` (frames, lost frames, frame rate, identity, settings), and on request
-``DIR/overlay.mp4`` (the fitted mesh over every frame). Nothing is written unless the whole
+``DIR/overlay.mp4`` (the fitted mesh over every frame) and ``DIR/track.glb`` (the animated
+mesh for viewers, :func:`morphable.tracking.write_track_glb`). Nothing is written unless the whole
 video was tracked.
 """
 from __future__ import annotations
@@ -23,7 +24,7 @@ NPZ_KEYS = ("time_s", "tracked", "detected", "euler_deg", "translation", "scale"
 
 
 def add_parser(sub):
-    from ..tracking import DEFAULT_SMOOTHING_HZ
+    from ..tracking import DEFAULT_IDENTITY, DEFAULT_SMOOTHING_HZ, IDENTITY_MODES
 
     p = sub.add_parser("track", help="track a face through a video: one identity, pose and "
                                      "expression per frame")
@@ -34,16 +35,23 @@ def add_parser(sub):
     add_detector_arguments(p)
     p.add_argument("--identity-frames", type=int, default=9, metavar="N",
                    help="frames spread uniformly for the identity fit (default 9)")
+    p.add_argument("--identity", choices=IDENTITY_MODES, default=DEFAULT_IDENTITY,
+                   help="the identity from the identity frames: one fit of them all (shared) or "
+                        f"each fitted alone and averaged (average); default {DEFAULT_IDENTITY}")
     p.add_argument("--smoothing-hz", type=float, default=DEFAULT_SMOOTHING_HZ, metavar="HZ",
                    help=f"cut-off of the temporal prior, Hz; 0: none (default {DEFAULT_SMOOTHING_HZ:g})")
     p.add_argument("--overlay-video", action="store_true",
                    help="also write DIR/overlay.mp4: the fitted mesh over every frame")
+    p.add_argument("--animated-mesh", action="store_true",
+                   help="also write DIR/track.glb: the mesh animated through the video (glTF 2.0 "
+                        "binary: identity in the base mesh, expressions as morph targets, the "
+                        "head pose per frame, timed at the video's frame rate)")
     return p
 
 
 def run(args):
     from ..io.atomic import atomic_path
-    from ..tracking import track_video
+    from ..tracking import track_video, write_track_glb
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -56,6 +64,7 @@ def run(args):
         raise InputError(f"--smoothing-hz must be >= 0, got {args.smoothing_hz}")
     start = time.perf_counter()
     tr = track_video(args.video, model=model_from(args), identity_frames=args.identity_frames,
+                     identity=args.identity,
                      landmark_detector=args.landmark_detector, face_detector=args.face_detector,
                      smoothing_hz=args.smoothing_hz, progress=not args.quiet)
     seconds = time.perf_counter() - start
@@ -65,19 +74,31 @@ def run(args):
                "frames_detected": int(tr.detected.sum()), "fps": tr.fps,
                "image_size": list(tr.image_size), "identity": [float(x) for x in tr.identity],
                "smoothing_hz": args.smoothing_hz, "identity_frames": args.identity_frames,
+               "identity_mode": args.identity,
                "landmark_rmse_px": _mean(tr.landmark_rmse_px), "tracking_fps": tr.n_frames / seconds}
     if not tr.tracked.any():
         raise InputError(f"{args.video}: the face was lost in every frame")
     out.mkdir(exist_ok=True)
     written = []
-    if args.overlay_video:
-        written.append(_overlay_video(args.video, tr, out / "overlay.mp4"))
-    with atomic_path(out / "track.npz") as tmp:
-        np.savez_compressed(tmp, **{k: np.asarray(getattr(tr, k)) for k in NPZ_KEYS},
-                            fps=tr.fps, image_size=np.array(tr.image_size))
-    with atomic_path(out / "track.json") as tmp:
-        Path(tmp).write_text(json.dumps(summary, indent=2))
-    written += [out / "track.npz", out / "track.json"]
+    try:
+        # the glTF first: cheap, so that its problems come before the overlay's long write
+        if args.animated_mesh:
+            written.append(write_track_glb(tr, out / "track.glb"))
+        if args.overlay_video:
+            written.append(_overlay_video(args.video, tr, out / "overlay.mp4"))
+        with atomic_path(out / "track.npz") as tmp:
+            np.savez_compressed(tmp, **{k: np.asarray(getattr(tr, k)) for k in NPZ_KEYS},
+                                fps=tr.fps, image_size=np.array(tr.image_size))
+        written.append(out / "track.npz")
+        with atomic_path(out / "track.json") as tmp:
+            Path(tmp).write_text(json.dumps(summary, indent=2))
+        written.append(out / "track.json")
+    except BaseException:
+        # all or nothing: a track without its arrays (or arrays without the asked-for files)
+        # would pass for a finished one
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
     print(f"{args.video}: {tr.n_frames} frames, {len(lost)} lost{_ranges(lost)}, face detector run on "
           f"{int(tr.detected.sum())}; {summary['tracking_fps']:.1f} frames/s; wrote "
           + " ".join(str(p) for p in written))
