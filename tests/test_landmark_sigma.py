@@ -172,3 +172,27 @@ def test_3d_convention(sfm):
     std = np.where(hidden, 5.0, 1.0)
     c = fit_landmarks(sfm, lab["points478"], (512, 512), convention="3d", landmark_std_px=std)
     assert err(c, verts) < 2.0 and np.isfinite(c.point_std_px[0, hidden]).all()
+
+
+def test_detected_frames_are_one_look_at_the_face(sfm, scene):
+    """A shared fit of N detected frames weighs its identity prior N times (one look at the
+    face's shape); annotated frames count in full, independent fits do not change."""
+    from morphable.fitting.options import detected_settings
+    from morphable.fitting.problem import detector_looks
+
+    _, lm = scene
+    a = fit_landmarks(sfm, lm, (512, 512), detected=True)
+    b = fit_landmarks(sfm, lm, (512, 512), prior_weight=2.0)
+    np.testing.assert_allclose(a.vertices(), b.vertices(), atol=1e-9)
+    c = fit_landmarks(sfm, lm, (512, 512), detected=[False, True])
+    d = fit_landmarks(sfm, lm, (512, 512))
+    np.testing.assert_allclose(c.vertices(), d.vertices(), atol=1e-9)     # 2 / (1 + 1)
+    e = fit_landmarks(sfm, lm, (512, 512), detected=True, shared_identity=False)
+    f = fit_landmarks(sfm, lm, (512, 512), shared_identity=False)
+    np.testing.assert_allclose(e.vertices(), f.vertices(), atol=1e-12)
+    assert detector_looks(np.array([True, True, False, False]), True) == 4 / 3
+    s = detected_settings([True] * 3, 478)
+    assert s["convention"] == "3d" and s["model_std_mm"].tolist() == [10.0] * 3
+    assert s["detected"].all()
+    assert detected_settings([True, False], 478).keys() == {"model_std_mm"}
+    assert detected_settings([True], 68).keys() == {"model_std_mm"}

@@ -75,7 +75,7 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                   huber_k: float = 1.345, shared_identity: bool = True,
                   landmark_std_px=1.0, model_std_mm=MODEL_STD_MM,
                   definition_std_mm=None, focal_px=None,
-                  contour=None, convention=None, dtype=np.float64) -> FitResult:
+                  contour=None, convention=None, detected=None, dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D landmarks of one or more images.
 
     Parameters
@@ -144,6 +144,13 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
         The older name of the same choice: "slide" = ``convention="2d"``, "fixed" =
         ``convention="3d"`` but with the scheme as given (iBUG-68's jaw points without a
         model vertex are then left out). Giving both, they must agree.
+    detected : None, bool or (N,) bool
+        The frames whose landmarks a detector found (None: none, annotations). In a shared fit
+        the detected frames count as one look at the face's shape: the identity's prior
+        weight is multiplied by ``N / (annotated frames + 1)``
+        (:func:`~morphable.fitting.problem.detector_looks`), as a detector's face-shaped errors
+        do not average away over the frames of one face. It does not set ``model_std_mm``
+        (:func:`~morphable.fitting.noise.frame_model_std` gives the detector's).
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
 
     Returns
@@ -177,7 +184,8 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                          robust=robust, huber_k=huber_k, shared_identity=shared_identity,
                          landmark_std_px=landmark_std_px, model_std_mm=model_std_mm,
                          definition_std_mm=definition_std_mm, focal_px=focal_px,
-                         contour=contour, convention=convention, dtype=dtype)
+                         contour=contour, convention=convention, detected=detected,
+                         dtype=dtype)
     y, given, size = as_frames(landmarks, mask, image_size)
     # the scheme and the model's landmark rows are prepared once per model, scheme and
     # process: not part of a fit's time

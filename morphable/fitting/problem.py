@@ -14,7 +14,22 @@ from .noise import MISSING_STD_PX, expression_precision
 from .options import FitOptions
 from .rows import basis_rows, fixed_gram, size_direction
 
-__all__ = ["Problem", "State", "as_frames", "group_index", "group_sum"]
+__all__ = ["Problem", "State", "as_frames", "group_index", "group_sum", "detector_looks"]
+
+
+def detector_looks(detected, shared: bool) -> float:
+    """How much more a shared identity's prior weighs because its frames' landmarks were
+    detected ((N,) bool ``detected``): ``N / (annotated frames + 1)`` where any frame was
+    detected, else 1 (and 1 for independent fits). A detector's errors are face-shaped (they
+    come out of a shape regression), depend on the light and pose more than on the frame, and
+    the views of a video triangulate them into depth: the detected frames of a shared fit are
+    one look at the face's shape, not N (the frames' data weigh as much against the prior as
+    one frame's; their poses and their per-frame noise still count in full). Measured on the
+    Florence protocol with the face mesh (docs/fitting.md, "Fitting with per-point sigma")."""
+    detected = np.asarray(detected, bool)
+    if not shared or not detected.any():
+        return 1.0
+    return len(detected) / (np.count_nonzero(~detected) + 1.0)
 
 
 def as_frames(landmarks, mask, image_size):
@@ -109,7 +124,7 @@ class Problem:
         # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
         self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
         self.prior = np.ones(K + self.D)
-        self.prior[:K] = self.prior_weight
+        self.prior[:K] = self.prior_weight * detector_looks(options.frame_detected(N), self.shared)
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
