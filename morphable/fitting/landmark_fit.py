@@ -36,10 +36,12 @@ Cost (per fit)::
     sum_frames sum_landmarks rho(|uv - y|^2 / s^2) + prior_weight |alpha|^2 + |delta|^2
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
-with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
-``prior_weight = 1`` (for outline points ``uv - y`` is its component across the outline; for
-blendshape weights ``expression_weight`` is multiplied by
-:func:`~morphable.fitting.noise.expression_precision`, E / 6 for E blendshapes). Only the
+with ``k`` the image scale in px/mm (``landmark_std_px`` one number, or each point's own),
+so that the prior has its Bayesian weight for ``prior_weight = 1`` (times
+:func:`~morphable.fitting.problem.detector_looks` for a shared fit of detected frames). For
+outline points ``uv - y`` is its component across the outline; for blendshape weights
+``expression_weight`` is multiplied by :func:`~morphable.fitting.noise.expression_precision`,
+E / 6 for E blendshapes. Only the
 landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
 estimates the detector's noise from the residuals (MacKay's evidence approximation: the
 normalised residuals of a fit add up to their degrees of freedom, the observations minus the

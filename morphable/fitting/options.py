@@ -41,7 +41,8 @@ class FitOptions:
 
     Raises InputError for a malformed setting. After validation ``model_std_mm`` and
     ``definition_std_mm`` are float64 arrays ((), (N,) or (L,)), or ``definition_std_mm``
-    None (the landmark scheme's), and ``dtype`` a numpy dtype.
+    None (the landmark scheme's), ``landmark_std_px`` a number, "auto" or a read-only
+    float64 array ((L,) or (N, L) px: :attr:`point_std`), and ``dtype`` a numpy dtype.
     """
 
     camera: str = "affine"
