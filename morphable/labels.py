@@ -19,8 +19,6 @@ Examples
 """
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 __all__ = ["label_schemes", "project_labels", "VIEW_OFFSET_MM"]
@@ -33,15 +31,10 @@ def label_schemes(model) -> dict:
     """The labelled point sets of ``model``: {"68": iBUG-68, "478": face mesh} as
     :class:`morphable.fitting.schemes.LandmarkScheme`. The iBUG rows the model has no vertex
     for take the face-mesh scheme's counterpart point (see the module's notes)."""
-    from .fitting.schemes import ibug68_scheme, load_scheme
+    from .fitting.schemes import ibug68_3d_scheme, load_scheme
 
-    mesh = load_scheme(model, "facemesh478")
-    ibug = ibug68_scheme(model)
-    vertices, bary = ibug.vertices.copy(), ibug.barycentric.copy()
-    fill = ~ibug.defined & (mesh.ibug68 >= 0)
-    vertices[fill] = mesh.vertices[mesh.ibug68[fill]]
-    bary[fill] = mesh.barycentric[mesh.ibug68[fill]]
-    return {"68": dataclasses.replace(ibug, vertices=vertices, barycentric=bary), "478": mesh}
+    mesh = load_scheme(model, "facemesh478")      # the labels need it: InputError if missing
+    return {"68": ibug68_3d_scheme(model), "478": mesh}
 
 
 def project_labels(vertices, triangles, camera, schemes, offset_mm: float = VIEW_OFFSET_MM) -> dict:

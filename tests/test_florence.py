@@ -383,7 +383,8 @@ def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
 
 def test_detected_frames_get_the_detectors_error(james, sfm):
     # frames whose landmarks a detector found are fitted with DETECTED_MODEL_STD_MM, unless
-    # the settings give model_std_mm; ours and ours-independent alike
+    # the settings give model_std_mm; ours and ours-independent alike (68 points: the face
+    # mesh's settings are tested in tests/test_landmark_sigma.py)
     from morphable.fitting import fit_landmarks
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 

@@ -143,13 +143,15 @@ class Method:
         raise NotImplementedError
 
 
-def _video_fit_options(settings: dict, focal_px, detected=None) -> dict:
+def _video_fit_options(settings: dict, focal_px, detected=None, n_landmarks: int = 68) -> dict:
     """Landmark-fit settings for a video's frames: a pinhole camera with the video's focal
     length when it is known (unless ``settings["camera"]`` says otherwise), the landmark
-    noise estimated (a video's is unknown: detector, resolution, blur) unless set, and the
-    detector's model error for frames whose landmarks were detected ((N,) bool ``detected``;
-    :data:`morphable.fitting.noise.DETECTED_MODEL_STD_MM`) unless set."""
-    from morphable.fitting.noise import frame_model_std
+    noise estimated (a video's is unknown: detector, resolution, blur) unless set, and for
+    frames whose landmarks were detected ((N,) bool ``detected``, ``n_landmarks`` points
+    each) the detector's settings (:func:`morphable.fitting.options.detected_settings`: its
+    model error, its frames one look at the face in a shared fit, the face mesh's
+    convention) unless set."""
+    from morphable.fitting.options import detected_settings
 
     out = dict(settings)
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")
@@ -157,7 +159,9 @@ def _video_fit_options(settings: dict, focal_px, detected=None) -> dict:
         out.setdefault("focal_px", focal_px)
     out.setdefault("landmark_std_px", "auto")
     if detected is not None and np.any(detected):
-        out.setdefault("model_std_mm", frame_model_std(detected))
+        for k, v in detected_settings(detected, n_landmarks).items():
+            if k != "convention" or "contour" not in out:
+                out.setdefault(k, v)
     return out
 
 
@@ -186,7 +190,8 @@ class Ours(Method):
         self.fit_landmarks = fit_landmarks
 
     def reconstruct(self, frames: Frames, settings: dict) -> Reconstruction:
-        options = _video_fit_options(settings, frames.focal_px, frames.detected)
+        options = _video_fit_options(settings, frames.focal_px, frames.detected,
+                                     np.shape(frames.landmarks)[1])
         t = time.perf_counter()
         res = self.fit_landmarks(self.model, frames.landmarks, frames.image_size,
                                  shared_identity=self.shared_identity, **options)

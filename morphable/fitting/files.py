@@ -189,7 +189,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     from ..detection import describe
     from ..errors import FitError
     from . import fit_landmarks
-    from .noise import frame_model_std
+    from .options import detected_settings
 
     images = list(images)
     if not images:
@@ -231,11 +231,11 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         from ..io.registry import load_model
 
         model = load_model(str(model))
-    model_std = frame_model_std([not lm for _, lm, _ in kept])
+    detected = detected_settings([not lm for _, lm, _ in kept], np.shape(lms)[1])
     res = fit_landmarks(model, lms, np.array([s for _, _, s in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
-                        landmark_std_px=landmark_std_px, model_std_mm=model_std)
+                        landmark_std_px=landmark_std_px, **detected)
     report = res.to_dict(images=[item.label if _is_frame(item) else str(item) for item, _, _ in kept])
     report["landmarks"] = [str(lm) if lm else source for _, lm, _ in kept]
     if any(_is_frame(item) for item in items):

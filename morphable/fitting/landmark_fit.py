@@ -36,10 +36,12 @@ Cost (per fit)::
     sum_frames sum_landmarks rho(|uv - y|^2 / s^2) + prior_weight |alpha|^2 + |delta|^2
         + expression_weight sum_frames |beta|^2,     s^2 = landmark_std_px^2 + (k model_std_mm)^2
 
-with ``k`` the image scale in px/mm, so that the prior has its Bayesian weight for
-``prior_weight = 1`` (for outline points ``uv - y`` is its component across the outline; for
-blendshape weights ``expression_weight`` is multiplied by
-:func:`~morphable.fitting.noise.expression_precision`, E / 6 for E blendshapes). Only the
+with ``k`` the image scale in px/mm (``landmark_std_px`` one number, or each point's own),
+so that the prior has its Bayesian weight for ``prior_weight = 1`` (times
+:func:`~morphable.fitting.problem.detector_looks` for a shared fit of detected frames). For
+outline points ``uv - y`` is its component across the outline; for blendshape weights
+``expression_weight`` is multiplied by :func:`~morphable.fitting.noise.expression_precision`,
+E / 6 for E blendshapes. Only the
 landmark rows of the model are evaluated, never the full mesh. ``landmark_std_px="auto"``
 estimates the detector's noise from the residuals (MacKay's evidence approximation: the
 normalised residuals of a fit add up to their degrees of freedom, the observations minus the
@@ -62,7 +64,7 @@ from .options import FitOptions
 from .problem import Problem, as_frames
 from .result import FitResult, fit_result
 from .rows import residuals
-from .schemes import fit_scheme
+from .schemes import fit_scheme, ibug68_3d_scheme
 from .sliding import slide
 
 __all__ = ["fit_landmarks"]
@@ -75,7 +77,7 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                   huber_k: float = 1.345, shared_identity: bool = True,
                   landmark_std_px=1.0, model_std_mm=MODEL_STD_MM,
                   definition_std_mm=None, focal_px=None,
-                  contour: str = "slide", dtype=np.float64) -> FitResult:
+                  contour=None, convention=None, detected=None, dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D landmarks of one or more images.
 
     Parameters
@@ -110,11 +112,18 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
     shared_identity : bool
         True: one identity for all frames. False: every frame is fitted on its own (batch mode,
         vectorised); ``identity`` is then the average of the per-frame identities.
-    landmark_std_px : float or "auto"
-        Noise of the 2D points (px). "auto" estimates it from the fit's own residuals (fit at
-        1 px, set the noise so that the normalised residuals add up to their degrees of
-        freedom, refit), one value per shared identity; it costs about 60 % more time. The
-        noise used is ``FitResult.landmark_std_px``.
+    landmark_std_px : float, "auto", or (L,) or (N, L) array-like, px
+        Noise (standard deviation) of the 2D points. One number for all points; "auto"
+        estimates it from the fit's own residuals (fit at 1 px, set the noise so that the
+        normalised residuals add up to their degrees of freedom, refit), one value per shared
+        identity, which costs about 60 % more time; or an array, each point's own noise (the
+        same in every frame, or per frame), as a detector that predicts an uncertainty per
+        point gives it: each residual then has its own ``s^2 = sigma^2 + (k model_std_mm)^2
+        (+ (k definition_std_mm)^2)``, in the linear stage and in Levenberg-Marquardt alike,
+        and the first pose weighs the points by it. Array values must be > 0 (NaN: InputError);
+        a point with a noise of :data:`~morphable.fitting.noise.MISSING_STD_PX` (1e6 px) or
+        more, ``inf`` included, is a missing point. The noise used is
+        ``FitResult.landmark_std_px`` (per frame) and ``FitResult.point_std_px`` (per point).
     model_std_mm : float or (N,) array
         The model's per-frame landmark error (mm), or per frame; for landmarks a detector
         found, :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (``morphable fit`` uses it
@@ -124,9 +133,26 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
         offset shared by all frames of a subject (see :mod:`~morphable.fitting.noise`); 0 = none.
         None: the scheme's (iBUG-68: :data:`~morphable.fitting.noise.DEFINITION_STD_MM`,
         largest for the eyebrows).
-    contour : {"slide", "fixed"}
-        "slide": outline points correspond to the face's outline, re-picked at every iteration
-        (:mod:`~morphable.fitting.correspondences`); "fixed": to fixed vertices, if any.
+    convention : {None, "2d", "3d"}
+        Where the detector puts outline points (the jaw, the face mesh's oval) and hidden
+        points: "2d" (None: the default) on the face's visible outline, as 2D annotations
+        (300-W, dlib, the face mesh) do: they slide along the model's outline; "3d" every
+        point on its own surface point, a hidden one where it projects, as AFLW2000-3D, 3DDFA
+        and the landmark network do: all points are fixed surface points (the scheme's, e.g.
+        the face mesh's oval; iBUG-68's jaw on a model without jaw vertices: the points of
+        :func:`morphable.labels.label_schemes`, which the network's labels use). A hidden
+        point then counts with its noise like any other.
+    contour : {None, "slide", "fixed"}
+        The older name of the same choice: "slide" = ``convention="2d"``, "fixed" =
+        ``convention="3d"`` but with the scheme as given (iBUG-68's jaw points without a
+        model vertex are then left out). Giving both, they must agree.
+    detected : None, bool or (N,) bool
+        The frames whose landmarks a detector found (None: none, annotations). In a shared fit
+        the detected frames count as one look at the face's shape: the identity's prior
+        weight is multiplied by ``N / (annotated frames + 1)``
+        (:func:`~morphable.fitting.problem.detector_looks`), as a detector's face-shaped errors
+        do not average away over the frames of one face. It does not set ``model_std_mm``
+        (:func:`~morphable.fitting.noise.frame_model_std` gives the detector's).
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
 
     Returns
@@ -160,13 +186,15 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                          robust=robust, huber_k=huber_k, shared_identity=shared_identity,
                          landmark_std_px=landmark_std_px, model_std_mm=model_std_mm,
                          definition_std_mm=definition_std_mm, focal_px=focal_px,
-                         contour=contour, dtype=dtype)
+                         contour=contour, convention=convention, detected=detected,
+                         dtype=dtype)
     y, given, size = as_frames(landmarks, mask, image_size)
     # the scheme and the model's landmark rows are prepared once per model, scheme and
     # process: not part of a fit's time
     t_bank = time.perf_counter()
-    bank = landmark_bank(model, fit_scheme(model, y.shape[1], scheme),
-                         slide=options.contour == "slide")
+    if scheme is None and options.convention == "3d" and y.shape[1] == 68:
+        scheme = ibug68_3d_scheme(model)
+    bank = landmark_bank(model, fit_scheme(model, y.shape[1], scheme), slide=options.slide)
     t0 += time.perf_counter() - t_bank
     pb = Problem(model, bank, options, y, given, size)
     with np.errstate(all="ignore"):
@@ -180,7 +208,7 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
         st, iters = lm_stage(pb, st, options.n_iterations)
         for _ in range(AUTO_ROUNDS if options.auto_std else 0):
             slide(pb, st)
-            pb.landmark_std_px = estimate_landmark_std(pb, st)
+            pb.set_landmark_std(estimate_landmark_std(pb, st))
             st, more = lm_stage(pb, st, options.n_iterations)
             iters += more
         slide(pb, st)

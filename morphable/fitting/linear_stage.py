@@ -12,7 +12,7 @@ import numpy as np
 
 from .correspondences import Correspondences
 from .linear import solve_expression, solve_identity
-from .noise import weights
+from .noise import pose_weights, weights
 from .pose import estimate_affine_pose
 from .problem import Problem, State
 from .offsets import solve_identity_offsets
@@ -48,14 +48,14 @@ def _affine_linear_stage(pb: Problem, n_linear: int) -> State:
     G = 1 if pb.shared else N
     corr = Correspondences.fixed(pb.bank, N)
     alpha, beta = np.zeros((G, K)), np.zeros((N, E))
-    W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)     # the first pose: fixed landmarks only
+    W0 = pose_weights(pb, corr.defined)     # the first pose: fixed landmarks only
     st = State(None, None, None, alpha, beta, corr, fixed_rows(pb, N))
     for it in range(max(n_linear, 1)):
         st.alpha, st.beta = alpha, beta
         R, t, s = estimate_affine_pose(points(pb, st), pb.y, W0, pb.principal, check=it == 0)
         st.R, st.t, st.k = R, t, s
         slide(pb, st)
-        W0 = np.where(pb.mask & corr.defined, 1.0, 0.0)
+        W0 = pose_weights(pb, corr.defined)
         if n_linear == 0:
             break
         W = weights(pb, st)

@@ -25,6 +25,10 @@ A fit's data weight of a landmark is ``1 / s^2`` with ``s^2 = landmark_std_px^2 
 model_std_mm)^2`` (plus ``(k definition_std_mm)^2`` where no offset carries the definition
 error), ``k`` the image scale in px/mm: :func:`weights` (``pb``, ``st``: a fit's
 :class:`~morphable.fitting.problem.Problem` and :class:`~morphable.fitting.problem.State`).
+``landmark_std_px`` is one number for all points, or its own for each point and frame (a
+detector that says how sure it is of each point): then each point's residual has its own
+``s^2``, the model's and definition errors added as for one number. A point whose noise is
+:data:`MISSING_STD_PX` or more (``inf`` included) is a missing point.
 """
 from __future__ import annotations
 
@@ -33,7 +37,8 @@ import numpy as np
 from ..ibug68 import DEFINITION_GROUPS
 
 __all__ = ["DEFINITION_STD_MM", "MODEL_STD_MM", "DETECTED_MODEL_STD_MM", "BLENDSHAPES_REF",
-           "expression_precision", "frame_model_std", "model_variance", "weights"]
+           "MISSING_STD_PX", "expression_precision", "frame_model_std", "model_variance",
+           "weights", "pose_weights", "effective_std"]
 
 
 def _definition_profile() -> np.ndarray:
@@ -65,6 +70,11 @@ validation subjects wearing photos' colours (SFM and ICT FaceKit, 8 each, ``pyth
 evaluation.florence --synthetic-scan ict --detect --appearance ...``): 8-12 mm did best, 1.5 mm
 (:data:`MODEL_STD_MM`, for annotated landmarks) worst; the held-out scan was not used."""
 
+
+MISSING_STD_PX = 1e6
+"""A landmark whose noise (``landmark_std_px``, px) is this or more is a missing point: its
+weight would be below 1e-12 of a 1 px point's, and leaving it out keeps a frame's count of
+usable points, the first pose and the noise estimate honest (no image is a million px wide)."""
 
 BLENDSHAPES_REF = 6
 """Blendshapes of the model whose expression prior weight 1 was chosen on (the SFM's six)."""
@@ -103,5 +113,31 @@ def model_variance(pb, st, depth=None):
 
 def weights(pb, st, depth=None):
     """(N, L) data weights 1/s^2 (0 for unused landmarks)."""
-    s2 = np.asarray(pb.landmark_std_px)[..., None] ** 2 + model_variance(pb, st, depth)
+    s2 = pb.landmark_var + model_variance(pb, st, depth)
     return np.where(pb.mask & st.corr.defined, 1.0 / s2, 0.0)
+
+
+def pose_weights(pb, defined) -> np.ndarray:
+    """(N, L) weights of the linear affine pose (:func:`~morphable.fitting.pose.estimate_affine_pose`)
+    over the usable landmarks with a correspondence (``defined`` (N, L) bool): 1 where all
+    points have the same noise; with per-point noise ``2 m / (s^2 + m)``, ``m`` the frame's
+    median ``s^2``. The image scale is not known yet, so the model's error cannot be added:
+    the median stands in for it, so that a precise point counts at most twice and a point
+    ten times less sure about 1/50 (not 1/100 of it, as ``1 / s^2`` alone would)."""
+    used = pb.mask & defined
+    if not pb.point_std:
+        return np.where(used, 1.0, 0.0)
+    v = np.where(used, pb.landmark_var, np.nan)
+    with np.errstate(all="ignore"):
+        m = np.nanmedian(v, axis=1, keepdims=True)
+    return np.where(used, 2 * m / (pb.landmark_var + m), 0.0)
+
+
+def effective_std(var, used) -> np.ndarray:
+    """(N,) px: per frame, the one noise that gives the used points (``used`` (N, L) bool)
+    the same total weight as their own noise (variances ``var`` (N, L) px^2):
+    ``1 / sqrt(mean(1 / var))``; 0 for a frame without used points."""
+    n = used.sum(1)
+    with np.errstate(divide="ignore"):
+        mean_w = np.where(used, 1.0 / var, 0.0).sum(1) / np.maximum(n, 1)
+    return np.where(n > 0, 1.0 / np.sqrt(np.maximum(mean_w, 1e-300)), 0.0)

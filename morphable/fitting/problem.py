@@ -10,11 +10,26 @@ import numpy as np
 
 from ..errors import FitError, InputError
 from ..ibug68 import as_landmarks
-from .noise import expression_precision
+from .noise import MISSING_STD_PX, expression_precision
 from .options import FitOptions
 from .rows import basis_rows, fixed_gram, size_direction
 
-__all__ = ["Problem", "State", "as_frames", "group_index", "group_sum"]
+__all__ = ["Problem", "State", "as_frames", "group_index", "group_sum", "detector_looks"]
+
+
+def detector_looks(detected, shared: bool) -> float:
+    """How much more a shared identity's prior weighs because its frames' landmarks were
+    detected ((N,) bool ``detected``): ``N / (annotated frames + 1)`` where any frame was
+    detected, else 1 (and 1 for independent fits). A detector's errors are face-shaped (they
+    come out of a shape regression), depend on the light and pose more than on the frame, and
+    the views of a video triangulate them into depth: the detected frames of a shared fit are
+    one look at the face's shape, not N (the frames' data weigh as much against the prior as
+    one frame's; their poses and their per-frame noise still count in full). Measured on the
+    Florence protocol with the face mesh (docs/fitting.md, "Fitting with per-point sigma")."""
+    detected = np.asarray(detected, bool)
+    if not shared or not detected.any():
+        return 1.0
+    return len(detected) / (np.count_nonzero(~detected) + 1.0)
 
 
 def as_frames(landmarks, mask, image_size):
@@ -50,18 +65,26 @@ class Problem:
     (:func:`~morphable.fitting.correspondences.landmark_bank`), the validated settings and
     the frames of :func:`as_frames` (``y`` (N, L, 2) px, ``given`` (N, L) bool, ``size``
     (N, 2) px); checks the settings against them (InputError) and raises FitError for a
-    frame with fewer than 4 usable landmarks (given and defined on the model). ``mask``
-    (N, L) holds the usable ones. ``sliding`` are the landmarks whose rows are re-gathered
+    frame with fewer than 4 usable landmarks (given, defined on the model and with a noise
+    below :data:`~morphable.fitting.noise.MISSING_STD_PX`). ``mask`` (N, L) holds the usable
+    ones, ``landmark_var`` (N, L) px^2 their landmark noise's variance (``point_std``: one of
+    their own per point, else one number for all). ``sliding`` are the landmarks whose rows are re-gathered
     when the outline moves (the outline landmarks; None where no frame gives one): a slice
     where they are consecutive, but for the chin (iBUG-68's 0-16), else indices.
     """
 
     def __init__(self, model, bank, options: FitOptions, y, given, size):
-        N = y.shape[0]
+        N, L = y.shape[:2]
         model_std_mm = options.frame_model_std(N)
         K, E = options.modes(model)
         focal = options.focal(size)
+        std = options.landmark_std(N, L)
+        self.point_std = options.point_std is not None
         mask = given & bank.usable[None]
+        if self.point_std:
+            # a point nobody is sure of is a missing point (not a tiny weight: the count of
+            # usable points, the first pose and the noise estimate must not count it)
+            mask &= std < MISSING_STD_PX
         if (mask.sum(1) < 4).any():
             f = int(np.argmax(mask.sum(1) < 4))
             raise FitError(f"frame {f}: {int(mask[f].sum())} usable landmarks "
@@ -78,6 +101,7 @@ class Problem:
         self.prior_weight = float(options.prior_weight)
         self.expression_weight = float(options.expression_weight) * expression_precision(model)
         self.landmark_std_px = options.start_std_px
+        self.landmark_var = np.where(mask, std, 1.0) ** 2
         self.model_std_mm = model_std_mm
         self.robust, self.huber_k = options.robust, float(options.huber_k)
         self.N = N
@@ -100,7 +124,7 @@ class Problem:
         # (M,) mm per unit of offset coefficient, of the landmarks ``offset_landmarks``
         self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
         self.prior = np.ones(K + self.D)
-        self.prior[:K] = self.prior_weight
+        self.prior[:K] = self.prior_weight * detector_looks(options.frame_detected(N), self.shared)
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
@@ -112,6 +136,12 @@ class Problem:
                      if self.robust is None and K else None)
         self.size_direction = size_direction(bank, K) if self.offsets else None
         self.K = K + self.D          # the shared coefficients: identity, then offsets
+
+
+    def set_landmark_std(self, std):
+        """Set one landmark noise per frame, (N,) px, for all points (``"auto"``)."""
+        self.landmark_std_px = std
+        self.landmark_var = np.broadcast_to((np.asarray(std) ** 2)[:, None], self.mask.shape)
 
 
 class State:

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import FitError, InputError
+from .noise import effective_std
 
 __all__ = ["FitResult", "fit_result", "AFFINE_DISTANCE_MM"]
 
@@ -40,7 +41,12 @@ class FitResult:
         landmark rows)
     cost : (N,) px^2, final sum of squared landmark residuals per frame
     landmark_std_px : (N,) float64, the landmark noise (px) the fit assumed for each frame
-        (estimated for ``"auto"``: one value per shared identity, else per frame)
+        (estimated for ``"auto"``: one value per shared identity, else per frame; with a
+        noise per point, the one noise of the same total weight over the used points,
+        :func:`~morphable.fitting.noise.effective_std`)
+    point_std_px : (N, L) float64, the landmark noise (px) the fit assumed for each point,
+        NaN where a point was not used (missing, or its noise at or above
+        :data:`~morphable.fitting.noise.MISSING_STD_PX`)
     model_std_mm : (N,) float64, the model's landmark error (mm) the fit assumed for each frame
         (a detector's is larger than an annotation's)
     """
@@ -61,6 +67,7 @@ class FitResult:
     dtype: object = np.float64
     landmark_std_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
     model_std_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    point_std_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     @property
     def n_frames(self) -> int:
@@ -162,6 +169,8 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                            scale=float(st.k[i]) if not pb.perspective else 1.0,
                            focal=float(st.k[i]) if pb.perspective else 1.0,
                            image_size=(W_, H_), principal=pb.principal[i]))
+    std = (effective_std(pb.landmark_var, used) if pb.point_std
+           else np.zeros(pb.N) + pb.landmark_std_px)
     K, y = pb.n_identity, pb.y_obs
     frame_alpha = st.alpha[:, :K].repeat(pb.N // len(st.alpha), 0)          # (N, K)
     # outline points: the foot of the landmark on the fitted outline (the target moved along it)
@@ -172,5 +181,5 @@ def fit_result(pb, st, iterations: int, r, depth) -> FitResult:
                      landmark_vertices=np.where(used, st.corr.vertex_ids(pb.bank), -1),
                      shared_identity=bool(pb.shared), iterations=iterations,
                      cost=cost, dtype=pb.options.dtype,
-                     landmark_std_px=np.zeros(pb.N) + pb.landmark_std_px,
-                     model_std_mm=pb.model_std_mm.astype(np.float64))
+                     landmark_std_px=std, model_std_mm=pb.model_std_mm.astype(np.float64),
+                     point_std_px=np.where(used, np.sqrt(pb.landmark_var), np.nan))

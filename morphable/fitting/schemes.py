@@ -18,6 +18,7 @@ the two irises' 5 points each), read from a sidecar file: committed for SFM and 
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import weakref
 from dataclasses import dataclass
@@ -29,7 +30,7 @@ from ..errors import InputError
 from ..ibug68 import JAW, MIRROR
 from .noise import DEFINITION_STD_MM
 
-__all__ = ["LandmarkScheme", "ibug68_scheme", "load_scheme", "save_scheme", "scheme_path",
+__all__ = ["LandmarkScheme", "ibug68_scheme", "ibug68_3d_scheme", "load_scheme", "save_scheme", "scheme_path",
            "model_fingerprint", "fit_scheme", "SCHEME_NAMES", "SCHEME_SIZES", "DATA_DIR"]
 
 SCHEME_NAMES = ("ibug68", "facemesh478")
@@ -139,6 +140,32 @@ def ibug68_scheme(model) -> LandmarkScheme:
         outline_right=right, outline_left=left, chin=_CHIN,
         definition_std_mm=DEFINITION_STD_MM.copy(), mirror=np.asarray(MIRROR, dtype=np.int64),
         ibug68=np.arange(68))
+
+
+def ibug68_3d_scheme(model) -> LandmarkScheme:
+    """iBUG-68 in the 3D convention (AFLW2000-3D, 3DDFA, the landmark network's labels:
+    every point on its own surface point, a hidden one where it projects), made once per
+    model: :func:`ibug68_scheme` with the rows the model has no vertex for (SFM: the 17 jaw
+    points and two inner-mouth points) at the face-mesh scheme's counterpart point
+    (``LandmarkScheme.ibug68``: a fixed surface point near the jaw line). Without a face-mesh
+    sidecar those rows stay undefined (a fit leaves them out)."""
+    per_model = _FIT_SCHEMES.setdefault(model, {})
+    if "ibug68_3d" not in per_model:
+        ibug = ibug68_scheme(model)
+        fill = ~ibug.defined
+        if fill.any():
+            try:
+                mesh = per_model.get("facemesh478") or load_scheme(model, "facemesh478")
+            except InputError:
+                mesh = None
+            if mesh is not None:
+                fill &= mesh.ibug68 >= 0
+                vertices, bary = ibug.vertices.copy(), ibug.barycentric.copy()
+                vertices[fill] = mesh.vertices[mesh.ibug68[fill]]
+                bary[fill] = mesh.barycentric[mesh.ibug68[fill]]
+                ibug = dataclasses.replace(ibug, vertices=vertices, barycentric=bary)
+        per_model["ibug68_3d"] = ibug
+    return per_model["ibug68_3d"]
 
 
 def model_fingerprint(model) -> str:
