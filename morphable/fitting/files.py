@@ -111,15 +111,16 @@ def _read_facemesh_points(path: Path) -> np.ndarray:
         raise InputError(f"{path}: cannot read landmarks ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
 
 
-def _detect(image, name, size, landmark_detector: str, face_detector: str) -> np.ndarray:
-    """Detected landmarks of a photo's path or a video frame's pixels; ``name`` for messages."""
-    from ..detection import detect_landmarks
+def _detect(image, name, size, landmark_detector: str, face_detector: str):
+    """The :class:`~morphable.detection.result.Detection` of a photo's path or a video frame's
+    pixels (its points, and its σ where the detector gives one); ``name`` for messages."""
+    from ..detection import detect
 
     mp = size[0] * size[1] / 1e6
     if mp > MAX_DETECT_MEGAPIXELS:
         raise InputError(f"{name}: {size[0]}x{size[1]} is {mp:.1f} megapixels, more than the "
                          f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
-    return detect_landmarks(image, landmark_detector=landmark_detector, face_detector=face_detector)
+    return detect(image, landmark_detector=landmark_detector, face_detector=face_detector)
 
 
 def expand_videos(images, n_frames: int = 5) -> list:
@@ -173,7 +174,9 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
     video_frames : int >= 1, frames sampled from each video (all of a shorter one)
 
-    Frames whose landmarks are detected are fitted with ``model_std_mm``
+    A detector that gives each point a σ (the landmark network) has its frames fitted with
+    those σ (:func:`morphable.detection.result.landmark_noise`; ``landmark_std_px`` for the
+    other frames). Frames whose landmarks are detected are fitted with ``model_std_mm``
     :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
     face-shaped), the others with the fitter's default. A video frame without a face is
     skipped (listed in the report's ``frames_skipped``); a photo without one, or a video
@@ -187,6 +190,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     ``frames_skipped``.
     """
     from ..detection import describe
+    from ..detection.result import landmark_noise
     from ..errors import FitError
     from . import fit_landmarks
     from .options import detected_settings
@@ -210,20 +214,23 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         items += expanded
         files += [lm] * len(expanded)
     sizes = [item.size if _is_frame(item) else image_size(item) for item in items]
-    points, kept, skipped = [], [], []
+    points, kept, skipped, found = [], [], [], []
     for item, lm, size in zip(items, files, sizes):
         if lm:
             points.append(read_landmark_file(lm, size))
+            found.append(None)
         elif _is_frame(item):
             try:
-                points.append(_detect(item.image, item.label, size, landmark_detector, face_detector))
+                found.append(_detect(item.image, item.label, size, landmark_detector, face_detector))
+                points.append(found[-1].points)
             except FitError:
                 # a video's frame without a face (turned away, occluded) is skipped, not fatal
                 skipped.append({"image": item.label, "time_s": round(item.time_s, 4),
                                 "reason": "no face found"})
                 continue
         else:
-            points.append(_detect(item, item, size, landmark_detector, face_detector))
+            found.append(_detect(item, item, size, landmark_detector, face_detector))
+            points.append(found[-1].points)
         kept.append((item, lm, size))
     _check_every_video_kept(items, kept)
     lms = one_landmark_set(points)
@@ -235,7 +242,8 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     res = fit_landmarks(model, lms, np.array([s for _, _, s in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
-                        landmark_std_px=landmark_std_px, **detected)
+                        landmark_std_px=landmark_noise(found, landmark_std_px, np.shape(lms)[1]),
+                        **detected)
     report = res.to_dict(images=[item.label if _is_frame(item) else str(item) for item, _, _ in kept])
     report["landmarks"] = [str(lm) if lm else source for _, lm, _ in kept]
     if any(_is_frame(item) for item in items):
