@@ -265,15 +265,20 @@ def _batches(items, n: int):
 
 
 def _detect(image, box, landmark_detector: str, face_detector: str):
-    """:func:`morphable.detection.detect_landmarks` in ``box`` (None: the whole image) ->
-    (L, 2) px, or None where it finds no face."""
-    from .detection import detect_landmarks
+    """:func:`morphable.detection.detect` in ``box`` (None: the whole image) -> ((L, 2) px,
+    the box to carry to the next frame), or (None, None) where it finds no face. The box
+    carried is the detector's own (:attr:`Detection.box`, in the convention its ``box=``
+    reads: the landmark network's framing) where it gives one, else the points' box
+    (:func:`carried_box`)."""
+    from .detection import detect
 
     try:
-        return detect_landmarks(image, landmark_detector=landmark_detector,
-                                face_detector=face_detector, box=box)
+        det = detect(image, landmark_detector=landmark_detector, face_detector=face_detector,
+                     box=box)
     except FitError:
-        return None
+        return None, None
+    carry = tuple(float(v) for v in det.box) if det.box is not None else carried_box(det.points)
+    return det.points, carry
 
 
 def fit_frames(fixed, points, image_size) -> list:
@@ -386,23 +391,23 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
         size = batch[0].size
         # landmarks in the box of the previous frame's points (the face detector only where
         # there is no box, or no face in it); the fits of the whole batch at once
-        points, detected = [], []
+        points, detected, carry = [], [], []
         for frame in batch:
-            pts = detect(frame.image, box) if box is not None else None
+            pts, box = detect(frame.image, box) if box is not None else (None, None)
             detected.append(pts is None)
             if pts is None:
-                pts = detect(frame.image, None)
+                pts, box = detect(frame.image, None)
             points.append(pts)
-            box = carried_box(pts) if pts is not None else None
+            carry.append(box)
         fits = fit_frames(fixed, points, size)
         # a box without the face still gives points, which the identity cannot fit: that
         # frame is detected again from scratch, and lost if that fails too
         for i, frame in enumerate(batch):
             if fits[i] is None and points[i] is not None and not detected[i]:
                 detected[i] = True
-                points[i] = detect(frame.image, None)
+                points[i], carry[i] = detect(frame.image, None)
                 fits[i] = fit_frames(fixed, [points[i]], size)[0]
-        box = carried_box(points[-1]) if fits[-1] is not None else None
+        box = carry[-1] if fits[-1] is not None else None
         for frame, pts, was_detected, fit in zip(batch, points, detected, fits):
             rows["time_s"].append(frame.time_s)
             rows["detected"].append(was_detected)
