@@ -24,7 +24,7 @@ import torch
 from morphable.errors import InputError
 
 from .landmark_net import crop_images, crop_theta, image_to_crop
-from .landmark_set import IBUG_START, N_FACEMESH, N_POINTS, face_box, mirror_index
+from .landmark_set import face_box, mirror_index
 
 __all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "SPLITS"]
 
@@ -200,7 +200,3 @@ def validation_batch(source: LandmarkSource, config, n: int = 256, seed: int = 0
     return {"image": x, "points": q, "weight": w, "face": torch.ones(len(index)),
             "index": index}
 
-
-def row_groups() -> dict:
-    """Row ranges of the point set by name, for reports: ``facemesh`` and ``ibug68``."""
-    return {"facemesh": slice(0, N_FACEMESH), "ibug68": slice(IBUG_START, N_POINTS)}

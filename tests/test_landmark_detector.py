@@ -94,9 +94,10 @@ def test_import_and_discovery_pull_no_torch():
     code = ("import sys, morphable, morphable.detection as d; d.plugins.installed(); "
             "d.resolve_detectors('dlib'); "
             "print(sorted(m for m in ('torch', 'neural', 'neural.landmark_detector') if m in sys.modules))")
-    # "auto" asks the installed plugin whether it can run: its module, not torch
+    # "auto" without mediapipe asks the installed plugin whether it can run: its module, not torch
     code += ("; from importlib import metadata; ep = metadata.EntryPoint('network', "
              f"'{ENTRY}', d.plugins.GROUP); d.plugins.metadata.entry_points = lambda **kw: [ep]; "
+             "d._facemesh_installed = lambda: False; "
              "d.resolve_detectors(); print('torch' in sys.modules, 'neural.landmark_detector' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=120)
@@ -106,9 +107,12 @@ def test_import_and_discovery_pull_no_torch():
 
 # --- the "auto" choice -----------------------------------------------------------------------
 
-def test_auto_prefers_the_network_then_facemesh_then_dlib(plugin, monkeypatch, tmp_path):
+def test_auto_prefers_facemesh_then_the_network_then_dlib(plugin, monkeypatch, tmp_path):
     import morphable.detection as det
 
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    assert det.resolve_detectors() == ("facemesh", "auto")
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: False)
     assert det.resolve_detectors() == ("network", "auto")
     assert det.resolve_detectors("auto", "windows") == ("network", "windows")
     assert det.describe("network", "hog") == "network hog"
@@ -116,9 +120,6 @@ def test_auto_prefers_the_network_then_facemesh_then_dlib(plugin, monkeypatch, t
     # error comes with the first detection)
     monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(tmp_path / "missing.pt"))
     det._network_ready.cache_clear()
-    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
-    assert det.resolve_detectors() == ("facemesh", "auto")
-    monkeypatch.setattr(det, "_facemesh_installed", lambda: False)
     assert det.resolve_detectors() == ("dlib", "hog")
     assert det.resolve_detectors("network") == ("network", "auto")
     with pytest.raises(InputError, match="'windows' does not go with the dlib"):
@@ -251,7 +252,7 @@ def test_public_interface_gives_478_rows_the_68_and_sigma(plugin):
     d = detect(img, landmark_detector="network", box=box)
     assert isinstance(d, Detection) and d.sigma_px.shape == (478,) and d.ibug68_sigma_px.shape == (68,)
     np.testing.assert_allclose(detect_landmarks(img, landmark_detector="network", box=box), d.points)
-    np.testing.assert_allclose(detect_ibug68(img, box=box), d.ibug68)      # auto is the network
+    np.testing.assert_allclose(detect_ibug68(img, landmark_detector="network", box=box), d.ibug68)
     assert detect_faces(img, landmark_detector="network", face_detector="windows").shape == (1, 4)
     # the face mesh and dlib through the same function: no σ, their conventions
     pytest.importorskip("dlib")

@@ -11,8 +11,10 @@
   ``"cnn"`` (whichever is installed), ``"windows"`` (the network's own face score over a grid
   of candidate windows), ``"auto"`` (mediapipe's full-range, else dlib's HOG, then the
   windows when it finds no face);
-- ``"auto"``: the network when its plugin is installed and can run (torch and its weights),
-  else the face mesh when mediapipe can be imported, else dlib; ``face_detector="auto"``: the
+- ``"auto"``: the face mesh when mediapipe can be imported, else the network when its plugin
+  is installed and can run (torch and its weights), else dlib (the committed network is less
+  accurate than the face mesh on near-frontal photos but finds every face: docs/landmark_net.md
+  has the figures that keep it second); ``face_detector="auto"``: the
   landmark detector's default (the face mesh's whole-photo search with the full-range
   fallback, dlib's HOG).
 
@@ -80,16 +82,16 @@ def _face_detectors(landmark_detector: str) -> tuple:
 
 def resolve_detectors(landmark_detector: str = "auto", face_detector: str = "auto") -> tuple[str, str]:
     """The choice as given -> ``(landmark detector, face detector)`` as run: "auto" landmark
-    detector resolved to "network" (plugin installed, torch and weights present), else
-    "facemesh" (mediapipe installed), else "dlib"; dlib's "auto" face detector to "hog" (the
+    detector resolved to "facemesh" (mediapipe installed), else "network" (plugin installed,
+    torch and weights present), else "dlib"; dlib's "auto" face detector to "hog" (the
     face mesh and the network keep "auto", their own strategy). InputError for an unknown name,
     a plugin that is not installed, or a face detector of another landmark detector."""
     if landmark_detector not in LANDMARK_DETECTORS and landmark_detector not in plugins.entry_points():
         raise InputError(f"landmark detector: choose from {', '.join(LANDMARK_DETECTORS)}, "
                          f"got {landmark_detector!r}")
     if landmark_detector == "auto":
-        landmark_detector = ("network" if _network_ready() else
-                             "facemesh" if _facemesh_installed() else "dlib")
+        landmark_detector = ("facemesh" if _facemesh_installed() else
+                             "network" if _network_ready() else "dlib")
     if landmark_detector not in BUILTIN:
         plugins.detector_class(landmark_detector)  # not installed: its one line, now
     allowed = _face_detectors(landmark_detector)
