@@ -9,6 +9,8 @@ seconds x threads (CPU seconds, not wall: other jobs on a shared machine slow th
 but not the work), and wall images/s beside it. Command::
 
     python -m evaluation.bench_landmark_training --steps 5 --report reports/bench_landmark_training.json
+
+``--widths 24 48 96 160 256 --blocks 0 1 1 1 1 --precision float32`` times another network.
 """
 from __future__ import annotations
 
@@ -17,12 +19,13 @@ import json
 import sys
 import time
 
-from morphable.errors import one_line_errors
+from morphable.errors import InputError, one_line_errors
 
 SETTINGS = (("float32", False), ("float32", True), ("bf16", False), ("bf16", True))
 
 
-def time_setting(amp: str, channels_last: bool, steps: int, batch_size: int, threads: int) -> dict:
+def time_setting(amp: str, channels_last: bool, steps: int, batch_size: int, threads: int,
+                 widths=None, blocks=None) -> dict:
     import torch
 
     from neural.landmark_net import LandmarkConfig, LandmarkNet, gaussian_nll
@@ -30,6 +33,8 @@ def time_setting(amp: str, channels_last: bool, steps: int, batch_size: int, thr
     torch.manual_seed(0)
     torch.set_num_threads(threads)
     cfg = LandmarkConfig(batch_size=batch_size)
+    if widths is not None:
+        cfg = LandmarkConfig(batch_size=batch_size, widths=tuple(widths), blocks=tuple(blocks))
     net = LandmarkNet(cfg)
     x = torch.randn(batch_size, 3, cfg.resolution, cfg.resolution)
     if channels_last:
@@ -62,9 +67,18 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=5)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--widths", type=int, nargs="+", help="another network's stage widths")
+    p.add_argument("--blocks", type=int, nargs="+", help="... and its residual blocks per stage")
+    p.add_argument("--precision", choices=("all", "float32"), default="all",
+                   help="float32: only float32 with channels-last (the CPU recipe's setting)")
     p.add_argument("--report", help="output JSON")
     args = p.parse_args(argv)
-    rows = [time_setting(a, c, args.steps, args.batch_size, args.threads) for a, c in SETTINGS]
+    if (args.widths is None) != (args.blocks is None) or (
+            args.widths is not None and len(args.widths) != len(args.blocks)):
+        raise InputError("--widths and --blocks go together, one block count per width")
+    settings = SETTINGS if args.precision == "all" else (("float32", True),)
+    rows = [time_setting(a, c, args.steps, args.batch_size, args.threads, args.widths, args.blocks)
+            for a, c in settings]
     print("| precision | channels-last | img/s (CPU time x threads) | img/s (wall) |")
     print("| --- | --- | --- | --- |")
     for r in rows:
@@ -74,6 +88,7 @@ def main(argv=None) -> int:
         from morphable.io.atomic import write_json
 
         write_json(args.report, {"steps": args.steps, "batch_size": args.batch_size,
+                                 "widths": args.widths, "blocks": args.blocks,
                                  "threads": args.threads, "rows": rows})
     return 0
 
