@@ -59,7 +59,7 @@ gar-data-128: $(STAMP)
 # finishes a killed build. The synthetic faces: `python -m neural.build_synthetic`
 landmark-data: landmark-synthetic landmark-annotated landmark-profiled
 
-# 10,000 SFM and 6,000 ICT faces at 160 px (about 4 and 8 minutes on 2 idle cores)
+# 10,000 SFM and 6,000 ICT faces at 160 px (SFM: 199 s of rendering on 2 idle cores)
 landmark-synthetic: $(STAMP)
 	$(BIN)/python -m neural.build_synthetic --out landmark_data/synthetic_sfm160 --n 10000 \
 		--resolution 160 --seed 1 --model sfm --workers 2 --data $(DATA)
