@@ -76,8 +76,8 @@ class LandmarkConfig:
     seed: int = 0
     mix: tuple = (("synthetic", 0.6), ("annotated", 0.25), ("profiled", 0.15))
     negatives: float = 0.08
-    scale_jitter: float = 0.15
-    shift_jitter: float = 0.1
+    scale_jitter: float = 0.2
+    shift_jitter: float = 0.15
     rotate_deg: float = 20.0
     flip: bool = True
     print_every: int = 50
