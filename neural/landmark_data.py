@@ -24,7 +24,7 @@ import torch
 from morphable.errors import InputError
 
 from .landmark_net import crop_images, crop_theta, image_to_crop
-from .landmark_set import face_box, mirror_index
+from .landmark_set import box_side, face_box, mirror_index
 
 __all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "SPLITS"]
 
@@ -134,7 +134,7 @@ def _crops(source: LandmarkSource, index, config, gen, negative, jitter: bool):
     H, W = img.shape[-2:]
     box = source.boxes[index].clone()
     c = (box[:, :2] + box[:, 2:]) / 2
-    s = (box[:, 2] - box[:, 0])
+    s = box_side(box)
     angle = flip = None
     if jitter:
         s = s * torch.exp(config.scale_jitter * torch.randn(b, generator=gen).clamp(-2.5, 2.5))

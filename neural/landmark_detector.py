@@ -40,7 +40,7 @@ from morphable.detection import FACE_DETECTORS as ALL_FACE_DETECTORS
 from morphable.detection.result import Detection
 from morphable.errors import FitError, InputError
 
-from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, face_box
+from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, box_side, face_box
 
 __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THRESHOLD",
            "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "PASSES", "weights_path", "framing_box", "extent_box",
@@ -102,7 +102,7 @@ def framing_box(box, face_detector: str) -> np.ndarray:
     if face_detector == "box":
         return box_from_points(b[..., :2], b[..., 2:])
     scale, dx, dy = BOX_FRAMING[face_detector]
-    side = ((b[..., 2] - b[..., 0]) + (b[..., 3] - b[..., 1])) / 2
+    side = box_side(b)
     cx = (b[..., 0] + b[..., 2]) / 2 + dx * side
     cy = (b[..., 1] + b[..., 3]) / 2 + dy * side
     half = scale * side / 2
@@ -115,7 +115,7 @@ def extent_box(framing) -> np.ndarray:
     from .landmark_set import BOX_LIFT, BOX_SCALE
 
     f = np.asarray(framing, dtype=np.float64)
-    size = ((f[..., 2] - f[..., 0]) + (f[..., 3] - f[..., 1])) / 2 / BOX_SCALE
+    size = box_side(f) / BOX_SCALE
     cx = (f[..., 0] + f[..., 2]) / 2
     cy = (f[..., 1] + f[..., 3]) / 2 + BOX_LIFT * size
     return np.stack([cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2], axis=-1)
@@ -155,7 +155,7 @@ def crops(image: np.ndarray, boxes, resolution: int):
 
     H, W = image.shape[:2]
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    side = ((boxes[:, 2] - boxes[:, 0]) + (boxes[:, 3] - boxes[:, 1])) / 2
+    side = box_side(boxes)
     ks = np.maximum(1, side // (2 * resolution)).astype(int)
     out = torch.zeros(len(boxes), 3, resolution, resolution)
     for k in np.unique(ks):
@@ -208,8 +208,6 @@ class NetworkDetector:
         if passes not in (1, 2):
             raise InputError(f"passes: 1 or 2, got {passes}")
         path = weights_path(weights)
-        if not path.is_file():
-            raise InputError(f"{path}: landmark network weights not found; {GET_WEIGHTS}")
         try:
             self.net = load_landmark_net(path)
         except InputError as e:
@@ -237,7 +235,7 @@ class NetworkDetector:
                 out = self.net(crops(image, b, self.resolution))
                 theta = crop_theta(b, (W, H))
                 pts.append(crop_to_image(out["points"].double(), theta.double(), (W, H)).numpy())
-                side = ((b[:, 2] - b[:, 0]) + (b[:, 3] - b[:, 1])) / 2
+                side = box_side(b)
                 sig.append(np.exp(out["log_sigma"].double().numpy()) * (side / self.resolution)[:, None])
                 prob.append(torch.sigmoid(out["score"].double()).numpy())
         P = self.net.config.n_points

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .landmark_set import N_POINTS
+from .landmark_set import N_POINTS, box_side
 
 __all__ = ["LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_theta", "crop_images",
            "crop_to_image", "image_to_crop", "points_in_crop_px", "save_landmark_net", "load_landmark_net"]
@@ -191,7 +191,7 @@ def crop_theta(boxes, image_sizes, angle=None, flip=None) -> torch.Tensor:
     boxes = torch.as_tensor(boxes, dtype=torch.float32)
     wh = torch.as_tensor(image_sizes, dtype=torch.float32).reshape(-1, 2).expand(len(boxes), 2)
     c = (boxes[:, :2] + boxes[:, 2:]) / 2
-    s = ((boxes[:, 2] - boxes[:, 0]) + (boxes[:, 3] - boxes[:, 1])) / 2
+    s = box_side(boxes)
     M = _rotation(angle, len(boxes)) * (s / 2)[:, None, None]
     M = M * _flip_matrix(flip, len(boxes))      # diag(±1, 1) on the right
     scale = (2 / wh)[:, :, None]

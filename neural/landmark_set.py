@@ -26,7 +26,7 @@ import numpy as np
 from morphable.ibug68 import MIRROR as IBUG_MIRROR
 
 __all__ = ["N_FACEMESH", "N_IBUG", "IBUG_START", "N_POINTS", "IBUG_ROWS", "FACEMESH_ROWS",
-           "BOX_SCALE", "BOX_LIFT", "mirror_index", "face_box", "box_from_points"]
+           "BOX_SCALE", "BOX_LIFT", "mirror_index", "face_box", "box_from_points", "box_side"]
 
 N_FACEMESH = 478
 N_IBUG = 68
@@ -82,3 +82,9 @@ def box_from_points(lo, hi) -> np.ndarray:
     cy = (lo[..., 1] + hi[..., 1]) / 2 - BOX_LIFT * size
     half = BOX_SCALE * size / 2
     return np.stack([cx - half, cy - half, cx + half, cy + half], axis=-1)
+
+
+def box_side(boxes):
+    """The side of boxes (..., 4) ``(x0, y0, x1, y1)`` px -> (...,) px: the mean of width and
+    height (a square's side; numpy arrays or tensors)."""
+    return ((boxes[..., 2] - boxes[..., 0]) + (boxes[..., 3] - boxes[..., 1])) / 2

@@ -149,9 +149,7 @@ class Trainer(TrainingRun):
             parse_policy(policy)
         except ValueError as e:
             raise InputError(f"--set augment: {e}") from None
-        self.config = replace(config, augment=policy)
-        config = self.config
-        (self.out / "samples").mkdir(parents=True, exist_ok=True)
+        config = self.config = replace(config, augment=policy)
         torch.manual_seed(config.seed)
         self.G = self.layout(Generator(config))
         self.D = self.layout(Discriminator(config))

@@ -44,7 +44,7 @@ import torch.nn.functional as F
 from morphable.errors import InputError, MorphableError
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .landmark_data import draw_batch, load_source, validation_batch
+from .landmark_data import LandmarkSource, draw_batch, load_source, validation_batch
 from .landmark_net import LandmarkConfig, LandmarkNet, gaussian_nll, points_in_crop_px
 from .landmark_set import IBUG_ROWS
 from .training import AMP_DTYPES, TrainingRun, cpu_state, parse_set
@@ -173,19 +173,30 @@ class LandmarkTrainer(TrainingRun):
 
     # --- held-out sets ------------------------------------------------------------------
     @torch.no_grad()
-    def evaluate(self) -> dict:
-        """Per held-out set: ``nme68_percent`` (mean distance of the 68 iBUG rows by the face
-        box side, which is the crop side: %), ``nme_all_percent`` (every labelled row),
-        ``sigma_px`` (mean predicted σ, crop px), ``calibration`` (mean of d²/(2σ²): 1 when σ
-        is right), ``score_mean``; appended to ``validation.jsonl``."""
+    def predict(self) -> dict:
+        """The network (eval mode) on every held-out set -> name -> dict of ``points`` (n, P, 2)
+        crop-normalised and ``log_sigma`` (n, P), float32 CPU tensors."""
         self.net.eval()
-        R, report = self.config.resolution, {"step": self.step}
+        out = {}
         for name, b in self.validation.items():
             with self.autocast():
-                out = self.net(self.layout(b["image"]))
-            d = ((out["points"].float().cpu() - b["points"]) * R / 2).norm(dim=-1)
+                o = self.net(self.layout(b["image"]))
+            out[name] = {k: o[k].float().cpu() for k in ("points", "log_sigma", "score")}
+        return out
+
+    def evaluate(self, pred=None) -> dict:
+        """Per held-out set (``pred``: :meth:`predict`'s, run when None): ``nme68_percent``
+        (mean distance of the 68 iBUG rows by the face box side, which is the crop side: %),
+        ``nme_all_percent`` (every labelled row), ``sigma_px`` (mean predicted σ, crop px),
+        ``calibration`` (mean of d²/(2σ²): 1 when σ is right), ``score_mean``; appended to
+        ``validation.jsonl``."""
+        pred = self.predict() if pred is None else pred
+        R, report = self.config.resolution, {"step": self.step}
+        for name, b in self.validation.items():
+            out = pred[name]
+            d = ((out["points"] - b["points"]) * R / 2).norm(dim=-1)
             w = b["weight"]
-            sig = out["log_sigma"].float().cpu().exp()
+            sig = out["log_sigma"].exp()
             w68 = w[:, IBUG_ROWS]
             report[name] = {
                 "n": len(w),
@@ -194,7 +205,7 @@ class LandmarkTrainer(TrainingRun):
                 "nme_all_percent": round(float((d * w).sum() / w.sum()) / R * 100, 3),
                 "sigma_px": round(float((sig * w).sum() / w.sum()), 3),
                 "calibration": round(float((d ** 2 / (2 * sig ** 2) * w).sum() / w.sum()), 3),
-                "score_mean": round(float(torch.sigmoid(out["score"].float()).mean()), 3)}
+                "score_mean": round(float(torch.sigmoid(out["score"]).mean()), 3)}
         with open(self.out / "validation.jsonl", "a") as f:
             f.write(json.dumps(report) + "\n")
         return report
@@ -205,15 +216,15 @@ class LandmarkTrainer(TrainingRun):
 
         from morphable.io.atomic import atomic_path
 
-        report = self.evaluate()
+        predicted = self.predict()
+        report = self.evaluate(predicted)
         log.info("held out at step %d: %s", self.step, json.dumps(report))
         if not self.validation:
             return None
         R, tiles = self.config.resolution, []
-        for b in self.validation.values():
-            with torch.no_grad(), self.autocast():
-                pred = self.net(self.layout(b["image"][:n]))["points"].float().cpu()
-            for i in range(min(n, len(pred))):
+        for name, b in self.validation.items():
+            pred = predicted[name]["points"][:n]
+            for i in range(len(pred)):
                 img = ((b["image"][i].permute(1, 2, 0) + 1) * 127.5).clamp(0, 255).byte().numpy()
                 tile = Image.fromarray(img)
                 draw = ImageDraw.Draw(tile)
@@ -280,8 +291,6 @@ def load_sources(synthetic=(), annotated=None, profiled=None, hold_out: int = 25
 
 
 def _concat(parts: list):
-    from .landmark_data import LandmarkSource
-
     if len(parts) == 1:
         return parts[0]
     sides = {tuple(p.images.shape[1:3]) for p in parts}
