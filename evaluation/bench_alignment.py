@@ -225,11 +225,11 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     detector with its own face detector's box (dlib's shape predictor expects its detector's
     framing); otherwise the largest face found. ``given_boxes`` (N, 4) px: no face detection,
     each photo's landmarks detected in its given box (the dataset's box protocol)."""
-    from morphable.detection import detect_faces, detect_ibug68, detect_landmarks
+    from morphable.detection import detect, detect_faces, detect_ibug68, detect_landmarks
     from morphable.detection.boxes import iou
     from morphable.detection.images import as_image
     from morphable.fitting import fit_landmarks
-    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.fitting.options import detection_settings
 
     method, _, renderer = method.partition("+")
     detector = method.removeprefix("ours-")
@@ -256,9 +256,9 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                     raise FitError(f"{name}: no detected face on the annotated one")
                 box = faces[int(np.argmax(overlap))]
             if method.startswith("ours-"):
-                pts = detect_landmarks(img, landmark_detector=detector, box=box)
-                res = fit_landmarks(model, pts, (img.shape[1], img.shape[0]),
-                                    model_std_mm=DETECTED_MODEL_STD_MM)
+                found = detect(img, landmark_detector=detector, box=box)
+                res = fit_landmarks(model, found.points, (img.shape[1], img.shape[0]),
+                                    **detection_settings([found], len(found.points)))
                 res = refined(img, res)
                 pred[i] = res.landmarks_68_px(convention)[0]
                 euler[i] = res.euler_deg[0]

@@ -64,10 +64,10 @@ def identity_meshes(method: str, paths, model, steps: int = 100,
     """(P, V, 3) mm identity meshes of the photos (NaN where the method failed), (P,) wall ms,
     and {photo: one-line reason} of the failures. A method ``ours-<detector>+<renderer>``
     refines each fit (:func:`evaluation.bench_alignment.refiner`) before taking its identity."""
-    from morphable.detection import detect_ibug68, detect_landmarks
+    from morphable.detection import detect, detect_ibug68
     from morphable.detection.images import read_image
     from morphable.fitting import fit_landmarks
-    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.fitting.options import detection_settings
 
     method, _, renderer = method.partition("+")
     fitter, detector = method.split("-")
@@ -88,8 +88,9 @@ def identity_meshes(method: str, paths, model, steps: int = 100,
             if eos is not None:
                 out[i] = eos.fit_with_identity(detect_ibug68(img, landmark_detector=detector), size)[2]
             else:
-                pts = detect_landmarks(img, landmark_detector=detector)
-                res = fit_landmarks(model, pts, size, model_std_mm=DETECTED_MODEL_STD_MM)
+                found = detect(img, landmark_detector=detector)
+                res = fit_landmarks(model, found.points, size,
+                                    **detection_settings([found], len(found.points)))
                 out[i] = refined(img, res).neutral_vertices()
         except (FitError, InputError) as e:
             errors[str(p)] = str(e)

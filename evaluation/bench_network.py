@@ -1,64 +1,124 @@
-"""The landmark network's own 68 points on AFLW2000-3D (research use only), the detector's
-choices side by side: given the 68 ground-truth points' extent as the box (the dataset's box)
-and with its own face detection (``face_detector="auto"``: mediapipe's full-range detector,
-the network's window search when it finds none), each with one and with two passes.
+"""The landmark network's detector options side by side: one or two passes, with and without
+the mirrored crop (``mirror``), on the held-out packs or on AFLW2000-3D.
 
+``--set validation`` (the default; choose options here, never on a test set): the faces the
+trainer holds out, each framed by its pack's face box: the last 256 faces of the synthetic
+SFM pack (exact labels), the annotated pack's validation split (AFLW's own sparse 2D
+annotations of visible points, 4-16 of the 68) and the profiled pack's (its 3D-convention
+fit, 66 points). Error: mean distance of the labelled 68 points / the 68 points' extent (the
+face box side / :data:`neural.landmark_set.BOX_SCALE`), %, per |yaw| bin and their mean.
+
+``--set aflw2000`` (research use only; a test set): given the 68 ground-truth points' extent
+as the box (the dataset's box) and with its own face detection (``face_detector="auto"``),
 NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the ground
-truth's box, per |yaw| bin and their mean); faces missed; median wall ms per photo on one
-torch thread (the photo decoded first, not timed).
+truth's box, per |yaw| bin and their mean); faces missed.
 
-    python -m evaluation.bench_network --n 100 --weights runs/ldmk_cpu/landmarks.pt
+Median wall ms per face on one torch thread (the photo decoded first, not timed).
+
+    python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_b/landmarks.pt
+    python -m evaluation.bench_network --set aflw2000 --n 100
 """
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
-from morphable.errors import FitError, one_line_errors
+from morphable.errors import FitError, InputError, one_line_errors
 
-__all__ = ["main"]
+__all__ = ["main", "OPTIONS"]
+
+OPTIONS = ((1, False), (1, True), (2, False), (2, True))
+"""(passes, mirror) compared."""
+PACKS = Path(__file__).resolve().parents[1] / "landmark_data"
 
 
-def _row(name, pred, gt, yaw, ms, missed=0) -> str:
-    from .bench_alignment import box_size, nme, yaw_table
+def _row(name, errors, yaw, ms, missed=0) -> str:
+    from .bench_alignment import yaw_table
 
-    tab = yaw_table(nme(pred, gt, box_size(gt)), yaw)
+    tab = yaw_table(errors, yaw)
     cells = [f"{b['nme_percent']:.2f}" if b["nme_percent"] is not None else "—" for b in tab["bins"]]
     mean = f"{tab['mean_percent']:.2f}" if tab["mean_percent"] is not None else "—"
-    return f"| {name} | {' | '.join(cells)} | {mean} | {missed} | {np.median(ms):.0f} |"
+    return f"| {name} | {' | '.join(cells)} | {mean} | {missed} | {np.median(ms):.1f} |"
 
 
-@one_line_errors("python -m evaluation.bench_network")
-def main(argv=None) -> int:
-    import torch
+def _option(passes, mirror) -> str:
+    return f"{passes} pass{'es' * (passes > 1)}{', mirror' if mirror else ''}"
 
+
+def held_out(packs: Path, hold_out: int = 256) -> dict:
+    """The trainer's held-out faces (:func:`neural.train_landmarks.load_sources`) of the packs
+    under ``packs`` that exist (InputError when none does): name ->
+    dict of ``images`` (N, H, W, 3) uint8, ``points`` (N, 68, 2) px (NaN unlabelled),
+    ``boxes`` (N, 4) framing px, ``yaw_deg`` (N,)."""
+    from neural.landmark_data import load_source
+    from neural.landmark_set import IBUG_ROWS
+
+    out = {}
+    for name, kind, sub in (("synthetic SFM", "synthetic", "synthetic_sfm160"),
+                            ("annotated (AFLW)", "annotated", "annotated"),
+                            ("profiled", "profiled", "profiled")):
+        if not (packs / sub).is_dir():
+            continue
+        s = load_source(packs / sub, kind, "validation")
+        if kind == "synthetic":
+            s = s.subset(np.arange(max(0, len(s) - hold_out), len(s)))
+        out[name] = {"images": s.images.numpy(), "points": s.points.numpy()[:, IBUG_ROWS],
+                     "boxes": s.boxes.numpy().astype(np.float64), "yaw_deg": s.yaw}
+    if not out:
+        raise InputError(f"{packs}: none of the packs synthetic_sfm160, annotated, profiled "
+                         "(make landmark-data builds them)")
+    return out
+
+
+def _validation(args) -> None:
+    from neural.landmark_detector import NetworkDetector, extent_box
+    from neural.landmark_set import BOX_SCALE, box_side
+
+    for name, d in held_out(Path(args.packs)).items():
+        n = len(d["images"]) if args.n is None else min(args.n, len(d["images"]))
+        extent = extent_box(d["boxes"][:n])
+        size = box_side(d["boxes"][:n]) / BOX_SCALE
+        print(f"\n{name}, {n} faces\n\n| options | 0-30° | 30-60° | 60-90° | mean | missed | "
+              "median ms |\n|---|---|---|---|---|---|---|")
+        for passes, mirror in OPTIONS:
+            det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
+            err, ms = np.full(n, np.nan), []
+            for i in range(n):
+                t = time.perf_counter()
+                pred = det.detect(d["images"][i], box=extent[i]).ibug68
+                ms.append((time.perf_counter() - t) * 1e3)
+                dist = np.linalg.norm(pred - d["points"][i], axis=-1)
+                err[i] = 100 * np.nanmean(dist) / size[i]
+            print(_row(_option(passes, mirror), err, d["yaw_deg"][:n], ms), flush=True)
+
+
+def _aflw2000(args) -> None:
     from morphable.detection.images import read_image
     from neural.landmark_detector import NetworkDetector
 
-    from .bench_alignment import data_root, dataset_boxes, load_aflw2000
+    from .bench_alignment import box_size, data_root, dataset_boxes, load_aflw2000, nme
 
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--n", type=int, default=100, help="the first N photos")
-    p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
-    args = p.parse_args(argv)
-    torch.set_num_threads(1)
     d = load_aflw2000(data_root(), args.n)
     gt, yaw = d["gt"], d["yaw_deg"]
+    norm = box_size(gt)
     boxes = dataset_boxes(gt)
     images = [read_image(path) for path in d["paths"]]
-    print("| box | 0-30° | 30-60° | 60-90° | mean | missed | median ms |\n|---|---|---|---|---|---|---|")
-    for passes in (1, 2):
-        det = NetworkDetector(args.weights, passes=passes)
+    print("| box, options | 0-30° | 30-60° | 60-90° | mean | missed | median ms |\n"
+          "|---|---|---|---|---|---|---|")
+    for passes, mirror in OPTIONS:
+        det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
         pred, ms = np.full(gt.shape, np.nan), []
         for i, img in enumerate(images):
             t = time.perf_counter()
             pred[i] = det.detect(img, box=boxes[i]).ibug68
             ms.append((time.perf_counter() - t) * 1e3)
-        print(_row(f"68 points' extent, {passes} pass{'es' * (passes > 1)}", pred, gt, yaw, ms), flush=True)
-    for passes in (1, 2):
-        det = NetworkDetector(args.weights, passes=passes)
+        print(_row(f"68 points' extent, {_option(passes, mirror)}", nme(pred, gt, norm), yaw, ms),
+              flush=True)
+    for passes, mirror in OPTIONS:
+        det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
         for i, img in enumerate(images):
             t = time.perf_counter()
@@ -71,8 +131,28 @@ def main(argv=None) -> int:
             found[r.detector] = found.get(r.detector, 0) + 1
         missed = len(images) - sum(found.values())
         how = ", ".join(f"{v} by {k.split()[1]}" for k, v in sorted(found.items()))
-        print(_row(f"own detection ({how}), {passes} pass{'es' * (passes > 1)}", pred, gt, yaw, ms,
-                   missed), flush=True)
+        print(_row(f"own detection ({how}), {_option(passes, mirror)}", nme(pred, gt, norm), yaw,
+                   ms, missed), flush=True)
+
+
+@one_line_errors("python -m evaluation.bench_network")
+def main(argv=None) -> int:
+    import torch
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--set", choices=("validation", "aflw2000"), default="validation")
+    p.add_argument("--n", type=int, help="the first N faces of each set (default: validation all, "
+                   "aflw2000 100)")
+    p.add_argument("--packs", default=str(PACKS), help="the folder of the landmark packs "
+                   "(validation; default landmark_data/)")
+    p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
+    args = p.parse_args(argv)
+    torch.set_num_threads(1)
+    if args.set == "validation":
+        _validation(args)
+    else:
+        args.n = 100 if args.n is None else args.n
+        _aflw2000(args)
     return 0
 
 

@@ -15,7 +15,8 @@ A face in a photo, step by step (pixels x right, y down, 0-based pixel centres):
    face detectors miss at large poses are still found;
 2. a first pass on the crop of that framing, then (``passes=2``; :data:`PASSES` says why
    not by default) a second on the crop re-centred from the first pass's 68 points through
-   ``face_box``;
+   ``face_box``; with ``mirror=True`` (:data:`MIRROR` says whether by default) each pass also
+   reads the crop mirrored and averages the two answers (:func:`merge_mirrored`);
 3. points and σ back to the photo's pixels (σ x framing side / 128).
 
 A box whose network score stays below :data:`FACE_THRESHOLD` is not a face: the next
@@ -43,8 +44,8 @@ from morphable.errors import FitError, InputError
 from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, box_side, face_box
 
 __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THRESHOLD",
-           "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "PASSES", "weights_path", "framing_box", "extent_box",
-           "windows", "crops", "NetworkDetector"]
+           "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "PASSES", "MIRROR", "weights_path", "framing_box", "extent_box",
+           "windows", "crops", "merge_mirrored", "NetworkDetector"]
 
 WEIGHTS_ENV = "MORPHABLE_LANDMARK_WEIGHTS"
 # neural.checkpoint.WEIGHTS_DIR's file, named without importing that module: it imports torch,
@@ -83,6 +84,9 @@ as the box, mean NME over the |yaw| bins 8.13 % with one pass and 8.36 % with tw
 of runs/ldmk_cpu at step 2000; at step 1000 10.44 and 11.41 %):
 ``python -m evaluation.bench_network --n 100 --weights runs/ldmk_cpu/landmarks.pt``
 (table in docs/detection.md)."""
+MIRROR = False
+"""Whether each pass also reads its crop mirrored by default (see :data:`PASSES` for the
+measurement: ``python -m evaluation.bench_network --set validation``)."""
 BATCH = 64
 
 
@@ -176,6 +180,28 @@ def crops(image: np.ndarray, boxes, resolution: int):
     return out
 
 
+def merge_mirrored(out: dict, mirrored: dict) -> dict:
+    """The network's answers on crops and on the same crops mirrored (``torch.flip`` of the
+    last axis) -> one answer: the mirrored crop's points put back (x -> -x in crop-normalised
+    coordinates, each row swapped with its mirror row, :func:`neural.landmark_set.mirror_index`)
+    and averaged with the plain ones; log σ the log of the root mean square of the two σ (the
+    two readings of one crop are not independent: σ is not shrunk by √2); the face logits
+    averaged.
+
+    out, mirrored : dicts of ``points`` (B, P, 2) crop-normalised, ``log_sigma`` (B, P),
+    ``score`` (B,) tensors."""
+    import torch
+
+    from .landmark_set import mirror_index
+
+    m = torch.as_tensor(mirror_index())
+    back = mirrored["points"][:, m] * torch.tensor([-1.0, 1.0], dtype=out["points"].dtype)
+    ls = torch.stack([out["log_sigma"], mirrored["log_sigma"][:, m]])
+    return {"points": (out["points"] + back) / 2,
+            "log_sigma": 0.5 * (torch.logsumexp(2 * ls, 0) - math.log(2)),
+            "score": (out["score"] + mirrored["score"]) / 2}
+
+
 class NetworkDetector:
     """The landmark network (:mod:`neural.landmark_net`) as a landmark detector.
 
@@ -185,6 +211,8 @@ class NetworkDetector:
         checkpoint), or None: :func:`weights_path`
     passes : 1 or 2: the second pass re-centres the crop on the first pass's 68 points
         (default :data:`PASSES`)
+    mirror : read every crop also mirrored and average (:func:`merge_mirrored`; twice the
+        network's time; default :data:`MIRROR`)
 
     InputError (one line naming the file and how to get the weights) when the file is missing
     or not landmark-network weights.
@@ -201,10 +229,11 @@ class NetworkDetector:
         path = weights_path()
         return None if path.is_file() else f"{path}: no landmark network weights"
 
-    def __init__(self, weights=None, passes: int = None):
+    def __init__(self, weights=None, passes: int = None, mirror: bool = None):
         from .landmark_net import load_landmark_net
 
         passes = PASSES if passes is None else passes
+        self.mirror = MIRROR if mirror is None else bool(mirror)
         if passes not in (1, 2):
             raise InputError(f"passes: 1 or 2, got {passes}")
         path = weights_path(weights)
@@ -232,7 +261,13 @@ class NetworkDetector:
         with torch.inference_mode():
             for i in range(0, len(boxes), BATCH):
                 b = boxes[i:i + BATCH]
-                out = self.net(crops(image, b, self.resolution))
+                x = crops(image, b, self.resolution)
+                if self.mirror:
+                    both = self.net(torch.cat([x, torch.flip(x, dims=[-1])]))
+                    out = merge_mirrored(*({k: v[j * len(b):(j + 1) * len(b)] for k, v in both.items()}
+                                           for j in (0, 1)))
+                else:
+                    out = self.net(x)
                 theta = crop_theta(b, (W, H))
                 pts.append(crop_to_image(out["points"].double(), theta.double(), (W, H)).numpy())
                 side = box_side(b)

@@ -200,6 +200,47 @@ def test_two_passes_and_the_way_back_round_trip_to_sub_pixel(tmp_path):
             np.testing.assert_allclose(d.box, np.r_[face[IBUG_ROWS].min(0), face[IBUG_ROWS].max(0)], atol=1e-3)
 
 
+def test_mirrored_reading_is_put_back_row_for_row_and_sigma_is_not_shrunk():
+    """A network that reads a mirrored crop perfectly answers the mirror image of its points:
+    merge_mirrored puts them back onto the plain answer exactly; σ is the root mean square of
+    the two (2 and 2 -> 2; 3 and 4 -> sqrt(12.5)), the face logits averaged."""
+    from neural.landmark_detector import merge_mirrored
+    from neural.landmark_set import mirror_index
+
+    m = torch.as_tensor(mirror_index())
+    q = torch.rand(3, 546, 2, dtype=torch.float64) * 2 - 1
+    flipped = (q * torch.tensor([-1.0, 1.0], dtype=torch.float64))[:, m]
+    ls = torch.full((3, 546), math.log(2.0), dtype=torch.float64)
+    out = merge_mirrored({"points": q, "log_sigma": ls, "score": torch.tensor([1.0, 2.0, 3.0])},
+                         {"points": flipped, "log_sigma": ls, "score": torch.tensor([3.0, 2.0, 1.0])})
+    torch.testing.assert_close(out["points"], q)
+    torch.testing.assert_close(out["log_sigma"].exp(), torch.full_like(ls, 2.0))
+    torch.testing.assert_close(out["score"], torch.full((3,), 2.0))
+    # a wrong row swap or sign would not come back: the mirror is not the identity
+    assert (flipped - q).abs().max() > 0.5
+    other = merge_mirrored({"points": q, "log_sigma": torch.full_like(ls, math.log(3.0)), "score": torch.zeros(3)},
+                           {"points": flipped, "log_sigma": torch.full_like(ls, math.log(4.0)), "score": torch.zeros(3)})
+    torch.testing.assert_close(other["log_sigma"].exp(), torch.full_like(ls, math.sqrt(12.5)))
+
+
+def test_mirror_option_agrees_with_one_reading_for_a_mirror_symmetric_answer(tmp_path):
+    """The detector with mirror=True on a network whose constant answer is its own mirror image
+    gives the one reading's points and σ; mirror=False is the default's alternative."""
+    from neural.landmark_detector import NetworkDetector
+    from neural.landmark_set import mirror_index
+
+    m = mirror_index()
+    q = np.random.default_rng(3).uniform(-0.6, 0.6, (546, 2))
+    q = (q + (q * [-1.0, 1.0])[m]) / 2
+    weights = tiny_net(tmp_path / "symmetric.pt", mean_points=q)
+    img, box = noise(), np.array([100.0, 60.0, 190.0, 170.0])
+    one = NetworkDetector(weights, mirror=False).detect(img, box=box)
+    two = NetworkDetector(weights, mirror=True).detect(img, box=box)
+    np.testing.assert_allclose(two.points, one.points, atol=1e-4)
+    np.testing.assert_allclose(two.ibug68, one.ibug68, atol=1e-4)
+    np.testing.assert_allclose(two.sigma_px, one.sigma_px, rtol=1e-5)
+
+
 def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypatch):
     from neural import landmark_detector as ld
 
@@ -315,3 +356,26 @@ def test_landmark_noise_gives_the_fitter_each_frames_sigma():
     assert s.shape == (3, 478) and (s[0] == 2.0).all() and (s[1:] == 1.5).all()
     s68 = landmark_noise([net, None], 1.0, n_points=68)
     assert s68.shape == (2, 68) and (s68[0] == 3.0).all() and (s68[1] == 1.0).all()
+
+
+def test_bench_network_validation_table_and_missing_packs(nets, tmp_path, capsys):
+    """evaluation.bench_network --set validation on a tiny synthetic pack: a table row per
+    option with finite errors; a folder without packs is one line, exit 2."""
+    from evaluation.bench_network import OPTIONS, main
+    from neural.build_synthetic import build
+
+    pytest.importorskip("morphable.raster")
+    try:
+        build(tmp_path / "synthetic_sfm160", n=4, resolution=64, seed=0, shard_size=4,
+              textures=0, backgrounds="none")
+    except InputError as e:           # no ../shared models on this machine
+        pytest.skip(str(e))
+    assert main(["--packs", str(tmp_path), "--weights", str(nets["face"])]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 1 pass") or r.startswith("| 2 pass")]
+    assert len(rows) == len(OPTIONS)
+    for r in rows:            # four faces leave some |yaw| bins (and so the mean) empty
+        cells = [float(c) for c in r.split("|")[2:5] if c.strip() != "—"]
+        assert cells and all(np.isfinite(c) and c > 0 for c in cells)
+    rc = main(["--packs", str(tmp_path / "nowhere")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "nowhere" in err

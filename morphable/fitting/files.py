@@ -190,10 +190,9 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
     ``frames_skipped``.
     """
     from ..detection import describe
-    from ..detection.result import landmark_noise
     from ..errors import FitError
     from . import fit_landmarks
-    from .options import detected_settings
+    from .options import detection_settings
 
     images = list(images)
     if not images:
@@ -238,12 +237,10 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         from ..io.registry import load_model
 
         model = load_model(str(model))
-    detected = detected_settings([not lm for _, lm, _ in kept], np.shape(lms)[1])
     res = fit_landmarks(model, lms, np.array([s for _, _, s in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
-                        landmark_std_px=landmark_noise(found, landmark_std_px, np.shape(lms)[1]),
-                        **detected)
+                        **detection_settings(found, np.shape(lms)[1], landmark_std_px))
     report = res.to_dict(images=[item.label if _is_frame(item) else str(item) for item, _, _ in kept])
     report["landmarks"] = [str(lm) if lm else source for _, lm, _ in kept]
     if any(_is_frame(item) for item in items):

@@ -17,7 +17,8 @@ import numpy as np
 from ..errors import InputError
 from .noise import MODEL_STD_MM
 
-__all__ = ["FitOptions", "CONVENTIONS", "FACEMESH_CONVENTION", "detected_settings"]
+__all__ = ["FitOptions", "CONVENTIONS", "FACEMESH_CONVENTION", "detected_settings",
+           "detection_settings"]
 
 CONVENTIONS = {"2d": "slide", "3d": "fixed"}
 """The landmark conventions and the outline handling each takes (``contour``): "2d", outline
@@ -222,6 +223,26 @@ def detected_settings(detected, n_landmarks: int) -> dict:
     if n_landmarks == 478 and detected.size and detected.all():
         out.update(convention=FACEMESH_CONVENTION, detected=detected)
     return out
+
+
+def detection_settings(detections, n_landmarks: int, landmark_std_px=1.0) -> dict:
+    """The keywords of :func:`~morphable.fitting.fit_landmarks` for frames found by detectors
+    or annotated, as ``morphable fit`` fits them: :func:`detected_settings` plus
+    ``landmark_std_px``, each frame's σ where its detector gives one
+    (:func:`morphable.detection.result.landmark_noise`).
+
+    detections : list of :class:`~morphable.detection.result.Detection`, or None for an
+        annotated frame, one per frame
+    n_landmarks : 478 or 68, the points per frame the fit is given
+    landmark_std_px : float or "auto", px: the noise of frames without σ
+
+    >>> detection_settings([None], 68)["landmark_std_px"]
+    1.0
+    """
+    from ..detection.result import landmark_noise
+
+    return {**detected_settings([d is not None for d in detections], n_landmarks),
+            "landmark_std_px": landmark_noise(detections, landmark_std_px, n_landmarks)}
 
 
 def _point_std(value) -> np.ndarray:
