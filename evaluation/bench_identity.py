@@ -36,9 +36,12 @@ from morphable.logs import add_verbosity_arguments, configure, verbosity
 from .bench_alignment import add_refine_arguments, data_root, refine_options, refined_methods, refiner
 from .bench_fitting import similarity_error
 
-__all__ = ["METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
+__all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
 
 METHODS = ("ours-facemesh", "ours-dlib", "eos-dlib", "eos-facemesh")
+NETWORK_METHODS = ("ours-network", "eos-network")
+"""With the landmark network's points (the neural plugin's detector; chosen by name, not run by
+default)."""
 REFINED = refined_methods(METHODS)
 CALIBRATION_PEOPLE = 20
 """The first people of the set, whose colours the scheme calibration's renders wore."""
@@ -125,7 +128,8 @@ def consistency(neutral, smiling) -> dict:
 @one_line_errors("evaluation.bench_identity")
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--methods", nargs="+", choices=METHODS + REFINED, default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS + NETWORK_METHODS + REFINED,
+                   default=list(METHODS))
     add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="people (default all 102)")
     p.add_argument("--data", type=Path, default=None,

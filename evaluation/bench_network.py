@@ -6,12 +6,15 @@ trainer holds out, each framed by its pack's face box: the last 256 faces of the
 SFM pack (exact labels), the annotated pack's validation split (AFLW's own sparse 2D
 annotations of visible points, 4-16 of the 68) and the profiled pack's (its 3D-convention
 fit, 66 points). Error: mean distance of the labelled 68 points / the 68 points' extent (the
-face box side / :data:`neural.landmark_set.BOX_SCALE`), %, per |yaw| bin and their mean.
+face box side / :data:`neural.landmark_set.BOX_SCALE`), %, per |yaw| bin, their mean and the
+mean over all faces; calibration: the mean of d² / (2σ²) over the labelled points (1 when the
+network's σ is right).
 
 ``--set aflw2000`` (research use only; a test set): given the 68 ground-truth points' extent
 as the box (the dataset's box) and with its own face detection (``face_detector="auto"``),
 NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the ground
-truth's box, per |yaw| bin and their mean); faces missed.
+truth's box, per |yaw| bin and their mean); faces missed; and for the default options how
+much of the error is a bias all faces share (:func:`bias_table`).
 
 Median wall ms per face on one torch thread (the photo decoded first, not timed).
 
@@ -28,20 +31,22 @@ import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
 
-__all__ = ["main", "OPTIONS"]
+__all__ = ["main", "OPTIONS", "bias_table", "held_out"]
 
 OPTIONS = ((1, False), (1, True), (2, False), (2, True))
 """(passes, mirror) compared."""
 PACKS = Path(__file__).resolve().parents[1] / "landmark_data"
 
 
-def _row(name, errors, yaw, ms, missed=0) -> str:
+def _row(name, errors, yaw, ms, missed=0, calibration=None) -> str:
     from .bench_alignment import yaw_table
 
     tab = yaw_table(errors, yaw)
     cells = [f"{b['nme_percent']:.2f}" if b["nme_percent"] is not None else "—" for b in tab["bins"]]
     mean = f"{tab['mean_percent']:.2f}" if tab["mean_percent"] is not None else "—"
-    return f"| {name} | {' | '.join(cells)} | {mean} | {missed} | {np.median(ms):.1f} |"
+    every = f"{np.nanmean(errors):.2f}" if np.isfinite(errors).any() else "—"
+    cal = "" if calibration is None else f" {np.nanmean(calibration):.2f} |"
+    return f"| {name} | {' | '.join(cells)} | {mean} | {every} | {missed} |{cal} {np.median(ms):.1f} |"
 
 
 def _option(passes, mirror) -> str:
@@ -81,23 +86,55 @@ def _validation(args) -> None:
         n = len(d["images"]) if args.n is None else min(args.n, len(d["images"]))
         extent = extent_box(d["boxes"][:n])
         size = box_side(d["boxes"][:n]) / BOX_SCALE
-        print(f"\n{name}, {n} faces\n\n| options | 0-30° | 30-60° | 60-90° | mean | missed | "
-              "median ms |\n|---|---|---|---|---|---|---|")
+        print(f"\n{name}, {n} faces\n\n| options | 0-30° | 30-60° | 60-90° | mean | all | missed | "
+              "d²/2σ² | median ms |\n|---|---|---|---|---|---|---|---|---|")
         for passes, mirror in OPTIONS:
             det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
-            err, ms = np.full(n, np.nan), []
+            err, cal, ms = np.full(n, np.nan), np.full(n, np.nan), []
             for i in range(n):
                 t = time.perf_counter()
-                pred = det.detect(d["images"][i], box=extent[i]).ibug68
+                found = det.detect(d["images"][i], box=extent[i])
                 ms.append((time.perf_counter() - t) * 1e3)
-                dist = np.linalg.norm(pred - d["points"][i], axis=-1)
+                dist = np.linalg.norm(found.ibug68 - d["points"][i], axis=-1)
                 err[i] = 100 * np.nanmean(dist) / size[i]
-            print(_row(_option(passes, mirror), err, d["yaw_deg"][:n], ms), flush=True)
+                cal[i] = np.nanmean(dist ** 2 / (2 * found.ibug68_sigma_px ** 2))
+            print(_row(_option(passes, mirror), err, d["yaw_deg"][:n], ms, calibration=cal), flush=True)
+
+
+def bias_table(pred, gt, norm, yaw_deg) -> str:
+    """How much of an error is a bias every face of a |yaw| bin shares (a difference of
+    landmark definition, say) -> a markdown table: per bin, the NME (% of ``norm``) and the
+    NME after subtracting each point's mean normalised offset, the mean estimated on the
+    other half of the bin's faces (even and odd rows, cross-fitted: no face scores its own
+    bias away), and the points with the largest bias (1-based iBUG numbers, % of ``norm``).
+    A diagnosis, not a correction: nothing uses the bias.
+
+    pred, gt : (N, 68, 2) px; norm (N,) px; yaw_deg (N,)"""
+    from .bench_alignment import YAW_BINS
+
+    a = np.abs(np.asarray(yaw_deg))
+    lines = ["| \\|yaw\\| | faces | NME % | without the shared bias % | largest bias (iBUG point: %) |",
+             "|---|---|---|---|---|"]
+    for lo, hi in YAW_BINS:
+        sel = np.flatnonzero((a <= hi) & ((a > lo) if lo > 0 else True))
+        r = (pred[sel] - gt[sel]) / norm[sel, None, None]
+        if len(sel) < 2:
+            continue
+        halves = (np.arange(len(sel)) % 2 == 0, np.arange(len(sel)) % 2 == 1)
+        left = np.concatenate([np.linalg.norm(r[ev] - np.nanmean(r[fit], 0), axis=-1).ravel()
+                               for fit, ev in (halves, halves[::-1])])
+        mu = np.linalg.norm(np.nanmean(r, 0), axis=-1)
+        top = np.argsort(-np.nan_to_num(mu))[:5]
+        name = f"{lo:.0f}-{hi:.0f}°" if np.isfinite(hi) else f"> {lo:.0f}°"
+        lines.append(f"| {name} | {len(sel)} | {100 * np.nanmean(np.linalg.norm(r, axis=-1)):.2f} | "
+                     f"{100 * np.nanmean(left):.2f} | "
+                     f"{', '.join(f'{k + 1}: {100 * mu[k]:.1f}' for k in top)} |")
+    return "\n".join(lines)
 
 
 def _aflw2000(args) -> None:
     from morphable.detection.images import read_image
-    from neural.landmark_detector import NetworkDetector
+    from neural.landmark_detector import MIRROR, PASSES, NetworkDetector
 
     from .bench_alignment import box_size, data_root, dataset_boxes, load_aflw2000, nme
 
@@ -106,8 +143,9 @@ def _aflw2000(args) -> None:
     norm = box_size(gt)
     boxes = dataset_boxes(gt)
     images = [read_image(path) for path in d["paths"]]
-    print("| box, options | 0-30° | 30-60° | 60-90° | mean | missed | median ms |\n"
-          "|---|---|---|---|---|---|---|")
+    print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
+          "|---|---|---|---|---|---|---|---|")
+    default = None
     for passes, mirror in OPTIONS:
         det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
         pred, ms = np.full(gt.shape, np.nan), []
@@ -117,6 +155,8 @@ def _aflw2000(args) -> None:
             ms.append((time.perf_counter() - t) * 1e3)
         print(_row(f"68 points' extent, {_option(passes, mirror)}", nme(pred, gt, norm), yaw, ms),
               flush=True)
+        if (passes, mirror) == (PASSES, MIRROR):
+            default = pred
     for passes, mirror in OPTIONS:
         det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
@@ -133,6 +173,9 @@ def _aflw2000(args) -> None:
         how = ", ".join(f"{v} by {k.split()[1]}" for k, v in sorted(found.items()))
         print(_row(f"own detection ({how}), {_option(passes, mirror)}", nme(pred, gt, norm), yaw,
                    ms, missed), flush=True)
+    print("\nThe default options' error (68 points' extent) and what is left of it without a bias "
+          "that every face of a bin shares:\n")
+    print(bias_table(default, gt, norm, yaw))
 
 
 @one_line_errors("python -m evaluation.bench_network")

@@ -177,7 +177,8 @@ def _face_template():
 def test_two_passes_and_the_way_back_round_trip_to_sub_pixel(tmp_path):
     """A network that always answers the same crop-normalised points (those of a face framed
     by face_box) gives, for a box of that face's 68-point extent anywhere in the photo, the
-    face itself: both passes frame it the same way and the points come back to photo pixels;
+    face itself: both passes frame it the same way and the points come back to photo pixels
+    (one reading: the template is not its own mirror image);
     σ is 8 crop px times the framing side / 128."""
     from neural.landmark_detector import NetworkDetector
     from neural.landmark_set import IBUG_ROWS, face_box
@@ -188,7 +189,7 @@ def test_two_passes_and_the_way_back_round_trip_to_sub_pixel(tmp_path):
     weights = tiny_net(tmp_path / "template.pt", mean_points=q0)
     img = noise()
     for passes in (1, 2):
-        det = NetworkDetector(weights, passes=passes)
+        det = NetworkDetector(weights, passes=passes, mirror=False)
         for scale, shift in ((1.0, (0.0, 0.0)), (0.7, (60.3, -10.8)), (1.6, (40.0, 20.0))):
             face = P * scale + shift
             d = det.detect(img, box=np.concatenate([face[IBUG_ROWS].min(0), face[IBUG_ROWS].max(0)]))
@@ -376,6 +377,29 @@ def test_bench_network_validation_table_and_missing_packs(nets, tmp_path, capsys
     for r in rows:            # four faces leave some |yaw| bins (and so the mean) empty
         cells = [float(c) for c in r.split("|")[2:5] if c.strip() != "—"]
         assert cells and all(np.isfinite(c) and c > 0 for c in cells)
+        every, calibration = float(r.split("|")[6]), float(r.split("|")[8])
+        assert min(cells) <= every <= max(cells) and np.isfinite(calibration) and calibration > 0
     rc = main(["--packs", str(tmp_path / "nowhere")])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "nowhere" in err
+
+
+def test_bias_table_takes_away_a_shared_offset_but_not_noise():
+    """Points all off by one offset plus noise: the cross-fitted table leaves about the noise's
+    share; pure noise keeps its error (no face scores its own bias away)."""
+    from evaluation.bench_network import bias_table
+
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(0, 100, (40, 68, 2))
+    norm = np.full(40, 100.0)
+    noise_only = gt + rng.normal(0, 1.0, gt.shape)
+    shifted = noise_only + np.r_[6.0, 0.0]
+
+    def cells(table):
+        row = table.splitlines()[2].split("|")
+        return float(row[3]), float(row[4])
+
+    before, after = cells(bias_table(shifted, gt, norm, np.zeros(40)))
+    assert before > 5.5 and after < 1.5
+    before, after = cells(bias_table(noise_only, gt, norm, np.zeros(40)))
+    assert abs(before - 1.25) < 0.15 and after >= before
