@@ -11,7 +11,9 @@ Methods, each run on every photo of a set:
   refinement moves the 68 points towards or away from the ground truth;
 - ``network``: the landmark network's own 68 rows (``landmark_detector="network"``, its
   weights from ``$MORPHABLE_LANDMARK_WEIGHTS`` or the committed ones; by name only);
-- ``ours-dlib``, ``ours-facemesh``, ``ours-network``: our fit (SFM, one frame) to either detector's points; its
+- ``ours-dlib``, ``ours-facemesh``, ``ours-network``: our fit (SFM, one frame) to the detector's points,
+  made as ``morphable fit`` makes it (:func:`morphable.fitting.options.detection_settings`:
+  the face mesh's and the network's 478 points in the 3D convention, the network's σ); its
   projected iBUG-68 landmarks (``FitResult.landmarks_68_px``) are what is scored, so that the
   fit must place the 68 points itself: AFLW2000-3D's ground truth is projected 3D landmarks
   (a hidden jaw point is where the jaw is, behind the cheek), so there the fit's jaw points stay

@@ -18,7 +18,7 @@ much of the error is a bias all faces share (:func:`bias_table`).
 
 Median wall ms per face on one torch thread (the photo decoded first, not timed).
 
-    python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_b/landmarks.pt
+    python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_c/landmarks.pt
     python -m evaluation.bench_network --set aflw2000 --n 100
 """
 from __future__ import annotations
