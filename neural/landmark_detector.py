@@ -212,8 +212,8 @@ class NetworkDetector:
         checkpoint), or None: :func:`weights_path`
     passes : 1 or 2: the second pass re-centres the crop on the first pass's 68 points
         (default :data:`PASSES`)
-    mirror : read every crop also mirrored and average (:func:`merge_mirrored`; twice the
-        network's time; default :data:`MIRROR`)
+    mirror : read every crop also mirrored and average (:func:`merge_mirrored`; one batch of
+        two crops: about 1.5 x the network's time on one thread; default :data:`MIRROR`)
 
     InputError (one line naming the file and how to get the weights) when the file is missing
     or not landmark-network weights.
