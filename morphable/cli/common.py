@@ -31,8 +31,8 @@ def add_detector_arguments(parser) -> None:
     parser.add_argument("--landmark-detector", choices=LANDMARK_DETECTORS, default="auto",
                         help="landmarks for images without landmark files: network (the neural "
                              "plugin's landmark network, 478 + 68 points with a sigma each), "
-                             "facemesh (mediapipe, 478 points), dlib (68); auto: the network when "
-                             "its weights are present, else facemesh when installed, else dlib "
+                             "facemesh (mediapipe, 478 points), dlib (68); auto: facemesh when "
+                             "installed, else the network when its weights are present, else dlib "
                              "(default)")
     faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
     parser.add_argument("--face-detector", choices=tuple(faces), default="auto",

@@ -9,8 +9,8 @@
   ``morphable.landmark_detectors`` (:mod:`.plugins`; any other plugin registered there is
   taken by its name too); face detectors ``"short-range"`` / ``"full-range"`` / ``"hog"`` /
   ``"cnn"`` (whichever is installed), ``"windows"`` (the network's own face score over a grid
-  of candidate windows), ``"auto"`` (mediapipe's full-range, else dlib's HOG, then the
-  windows when it finds no face);
+  of candidate windows), ``"auto"`` (mediapipe's short-range then full-range detector, else
+  dlib's HOG, then the windows when they find no face);
 - ``"auto"``: the face mesh when mediapipe can be imported, else the network when its plugin
   is installed and can run (torch and its weights), else dlib (the committed network is less
   accurate than the face mesh on near-frontal photos but finds every face: docs/landmark_net.md
