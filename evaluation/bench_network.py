@@ -82,14 +82,14 @@ def _validation(args) -> None:
     from neural.landmark_detector import NetworkDetector, extent_box
     from neural.landmark_set import BOX_SCALE, box_side
 
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
     for name, d in held_out(Path(args.packs)).items():
         n = len(d["images"]) if args.n is None else min(args.n, len(d["images"]))
         extent = extent_box(d["boxes"][:n])
         size = box_side(d["boxes"][:n]) / BOX_SCALE
         print(f"\n{name}, {n} faces\n\n| options | 0-30° | 30-60° | 60-90° | mean | all | missed | "
               "d²/2σ² | median ms |\n|---|---|---|---|---|---|---|---|---|")
-        for passes, mirror in OPTIONS:
-            det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
+        for (passes, mirror), det in detectors.items():
             err, cal, ms = np.full(n, np.nan), np.full(n, np.nan), []
             for i in range(n):
                 t = time.perf_counter()
@@ -145,9 +145,9 @@ def _aflw2000(args) -> None:
     images = [read_image(path) for path in d["paths"]]
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
     default = None
-    for passes, mirror in OPTIONS:
-        det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
+    for (passes, mirror), det in detectors.items():
         pred, ms = np.full(gt.shape, np.nan), []
         for i, img in enumerate(images):
             t = time.perf_counter()
@@ -157,8 +157,7 @@ def _aflw2000(args) -> None:
               flush=True)
         if (passes, mirror) == (PASSES, MIRROR):
             default = pred
-    for passes, mirror in OPTIONS:
-        det = NetworkDetector(args.weights, passes=passes, mirror=mirror)
+    for (passes, mirror), det in detectors.items():
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
         for i, img in enumerate(images):
             t = time.perf_counter()
