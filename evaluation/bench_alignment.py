@@ -57,7 +57,7 @@ from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
            "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
-           "eye_distance", "nme", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
+           "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
 NETWORK_METHODS = ("network", "ours-network")
@@ -143,13 +143,18 @@ def nme(pred, gt, norm) -> np.ndarray:
     return np.where(given.sum(1) >= 60, 100.0 * mean / norm, np.nan)
 
 
+def yaw_bins(yaw_deg) -> list:
+    """The :data:`YAW_BINS` of (N,) yaw angles (degrees) -> [(lo, hi, (N,) bool), ...]: |yaw| in
+    (lo, hi], the first bin with 0 itself."""
+    a = np.abs(np.asarray(yaw_deg))
+    return [(lo, hi, (a <= hi) & ((a > lo) if lo > 0 else True)) for lo, hi in YAW_BINS]
+
+
 def yaw_table(errors, yaw_deg) -> dict:
     """Per |yaw| bin: photos, failures (NaN errors) and the mean NME over the rest; and the mean
     of the bins' means."""
-    a = np.abs(np.asarray(yaw_deg))
     bins = []
-    for lo, hi in YAW_BINS:
-        sel = (a <= hi) & ((a > lo) if lo > 0 else True)
+    for lo, hi, sel in yaw_bins(yaw_deg):
         e = errors[sel]
         ok = np.isfinite(e)
         bins.append({"bin": f"{lo:.0f}-{hi:.0f}" if np.isfinite(hi) else f">{lo:.0f}",

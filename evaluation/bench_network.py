@@ -110,13 +110,12 @@ def bias_table(pred, gt, norm, yaw_deg) -> str:
     A diagnosis, not a correction: nothing uses the bias.
 
     pred, gt : (N, 68, 2) px; norm (N,) px; yaw_deg (N,)"""
-    from .bench_alignment import YAW_BINS
+    from .bench_alignment import yaw_bins
 
-    a = np.abs(np.asarray(yaw_deg))
     lines = ["| \\|yaw\\| | faces | NME % | without the shared bias % | largest bias (iBUG point: %) |",
              "|---|---|---|---|---|"]
-    for lo, hi in YAW_BINS:
-        sel = np.flatnonzero((a <= hi) & ((a > lo) if lo > 0 else True))
+    for lo, hi, mask in yaw_bins(yaw_deg):
+        sel = np.flatnonzero(mask)
         r = (pred[sel] - gt[sel]) / norm[sel, None, None]
         if len(sel) < 2:
             continue
