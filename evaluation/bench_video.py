@@ -240,8 +240,8 @@ def florence_protocol_on_videos(scan, model, clips: dict, methods, n_frames: int
            "videos": run_protocol(scan, model, methods, conditions, videos=clips, detect=detect)[0]}
     shift = {}
     for c, clip in clips.items():
-        a = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect)[0]
-        b = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect, video=clip)[0]
+        a = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect)[0].landmarks
+        b = video_landmarks(scan, model, c, 5, n_frames, 0, detect=detect, video=clip)[0].landmarks
         shift[c] = float(np.nanmedian(np.linalg.norm(a - b, axis=-1)))
     out["landmark_shift_px"] = shift
     return out

@@ -20,7 +20,14 @@ they project, as AFLW2000-3D's ``pts68_3d``), normalised by sqrt(w h) of the box
 true points (AFLW2000-3D's protocol, so that the figures compare with the issue's AFLW2000-3D
 ones); SFM has no point for two inner-mouth rows (``defined68``), so 66 points are scored.
 ``nme_visible_percent``: the same over each face's visible points only (same normaliser).
-Tables by |yaw| bin [0, 30], (30, 60], (60, 90] and by light kind. Command::
+Tables by |yaw| bin [0, 30], (30, 60], (60, 90] and by light kind.
+
+Identity signal (:func:`identity_signal`): how far the detected points move with the face's
+identity — the same face with the model's mean identity is projected too (``mean68``), and
+the detected points' offsets from it are regressed on the true points' (1: the points carry
+the identity in full; 0: they stay where the mean face's are, and a fit to them stays near
+the mean face), over each detector's found faces and over the faces every detector found.
+Command::
 
     python -m evaluation.facemesh_synthetic --n 300 --resolution 256 --report reports/facemesh_synthetic.json
 """
@@ -36,7 +43,7 @@ import numpy as np
 from morphable.errors import InputError, one_line_errors
 
 __all__ = ["VALIDATION_TEXTURES", "VALIDATION_SEED", "validation_engine", "validation_faces",
-           "score", "main"]
+           "score", "identity_signal", "main"]
 
 VALIDATION_TEXTURES = 16
 """London photos (the last ones of the sorted list) that dress the validation faces."""
@@ -62,10 +69,23 @@ def validation_engine(data, model: str = "sfm", resolution: int = 256, textures:
 
 def validation_faces(engine, n: int, seed: int = VALIDATION_SEED) -> dict:
     """``n`` faces -> ``images`` (n, R, R, 3) uint8, ``points68`` (n, 68, 2) px,
-    ``visible68``, ``defined68`` (n, 68) bool, ``yaw_deg`` (n,), ``light`` (n,) str."""
+    ``mean68`` (n, 68, 2) px: the points of the same face with the model's mean identity (same
+    expression and camera), ``identity`` (n, K) its coefficients, ``focal_px`` (n,) its
+    camera's focal length, ``visible68``, ``defined68`` (n, 68) bool, ``yaw_deg`` (n,),
+    ``light`` (n,) str."""
+    from morphable.labels import project_labels
+    from neural.synthetic import VIEW_OFFSET_MM
+
+    m = engine.model
     faces = [engine.sample(np.random.default_rng([seed, k])) for k in range(n)]
+    mean = [project_labels(m.vertices(np.zeros_like(f["params"]["identity"]), f["params"]["expression"]),
+                           m.triangles, f["camera"], {"68": engine.schemes["68"]},
+                           offset_mm=VIEW_OFFSET_MM)["points68"] for f in faces]
     return {"images": np.stack([f["image"] for f in faces]),
             "points68": np.stack([f["points68"] for f in faces]).astype(np.float64),
+            "mean68": np.stack(mean).astype(np.float64),
+            "identity": np.stack([f["params"]["identity"] for f in faces]).astype(np.float64),
+            "focal_px": np.array([float(f["camera"].focal) for f in faces]),
             "visible68": np.stack([f["visible68"] for f in faces]),
             "defined68": np.stack([f["defined68"] for f in faces]),
             "yaw_deg": np.array([f["params"]["pose"][0] for f in faces]),
@@ -91,6 +111,62 @@ def score(pred, faces) -> dict:
             mean = np.where(use, d, 0.0).sum(1) / use.sum(1)
         out[key] = np.where(use.sum(1) > 0, 100.0 * mean / norm, np.nan)
     return out
+
+
+def identity_signal(pred, faces) -> dict:
+    """How much of each face's identity a detector's points carry: on the defined points of
+    the faces it found, the true points' offsets from the mean identity's (``points68 -
+    mean68``, the identity's own effect in the photo) against the detected points' offsets
+    from the mean identity's, both in units of the face size (:func:`score`'s normaliser), the
+    mean offset of each point over the faces taken away from both (a bias every face shares,
+    e.g. a different definition of the point, is no identity).
+
+    pred : (n, 68, 2) px, NaN rows for faces not found; faces : :func:`validation_faces`
+
+    Returns
+    -------
+    dict: ``faces`` used; ``identity_rms_percent``: RMS of the identity's offsets, % of the face
+    size; ``reproduced``: the least-squares slope of the detected offsets on the true ones (1:
+    the points move with the identity in full, 0: they stay at the mean face's);
+    ``correlation``; ``rest_rms_percent``: RMS of what the slope leaves (error, pose, noise)."""
+    norm = score(pred, faces)["norm"]
+    found = np.isfinite(pred).any((1, 2))
+    truth = (faces["points68"] - faces["mean68"])[found] / norm[found, None, None]
+    seen = (pred - faces["mean68"])[found] / norm[found, None, None]
+    use = (np.broadcast_to(faces["defined68"][found, :, None], truth.shape) & np.isfinite(truth)
+           & np.isfinite(seen))
+    def centred(x):
+        return x - np.where(use, x, 0.0).sum(0) / np.maximum(use.sum(0), 1)
+
+    t, e = centred(truth)[use], centred(seen)[use]
+    slope = float(t @ e / (t @ t))
+    return {"faces": int(found.sum()), "identity_rms_percent": float(100 * np.sqrt(np.mean(t ** 2) * 2)),
+            "reproduced": slope, "correlation": float(t @ e / np.sqrt((t @ t) * (e @ e))),
+            "rest_rms_percent": float(100 * np.sqrt(np.mean((e - slope * t) ** 2) * 2))}
+
+
+def identity_fit_error(model, pred, faces, resolution: int) -> dict:
+    """What the points give a fit: each found face's 68 points (``pred`` (n, 68, 2) px, NaN
+    rows: not found) fitted as ``morphable fit`` fits a detector's 68 (3D convention, the
+    detector's model error, one estimated noise) with a pinhole camera of the face's focal
+    length; the fitted identity's neutral mesh against the true one, mean per-vertex distance
+    after the best similarity (mm) -> dict: ``faces``, ``fit_mm`` and ``mean_face_mm`` (the
+    model's mean face against the same faces), their means over the found faces."""
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.options import detected_settings
+
+    from .bench_fitting import similarity_error
+
+    fit, mean = [], []
+    for i in np.flatnonzero(np.isfinite(pred).any((1, 2))):
+        res = fit_landmarks(model, pred[i], (resolution, resolution), camera="perspective",
+                            focal_px=faces["focal_px"][i], convention="3d",
+                            landmark_std_px="auto", **detected_settings([True], 68))
+        truth = model.vertices(faces["identity"][i], None)
+        fit.append(similarity_error(res.neutral_vertices(), truth))
+        mean.append(similarity_error(model.mean.astype(np.float64), truth))
+    return {"faces": len(fit), "fit_mm": float(np.mean(fit)) if fit else None,
+            "mean_face_mm": float(np.mean(mean)) if mean else None}
 
 
 def _row(sel, s) -> dict:
@@ -178,13 +254,36 @@ def main(argv=None) -> int:
     report = {"faces": args.n, "resolution": args.resolution, "seed": args.seed, "model": args.model,
               "textures": args.textures, "normaliser": "sqrt(w h) of the box of the defined true points",
               "seconds_drawing": round(t_draw, 1), "methods": {}}
+    found = {}
     for method in args.methods:
         r = run_method(method, list(faces["images"]))
-        t = tables(faces, _failures(r["pred"], gt, faces))
+        s = _failures(r["pred"], gt, faces)
+        t = tables(faces, s)
+        # a face found elsewhere (a background's) is no reading of this face's identity
+        found[method] = np.where(np.isfinite(s["nme"])[:, None, None], r["pred"], np.nan)
+        ident = identity_signal(found[method], faces)
         report["methods"][method] = {
-            "tables": t, "median_ms_detection":
+            "tables": t, "identity_signal": ident, "median_ms_detection":
             float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None}
-        print(f"{method}:\n{format_tables(t)}")
+        print(f"{method}:\n{format_tables(t)}\nidentity signal (faces found: {ident['faces']}): "
+              f"the identity moves the points by {ident['identity_rms_percent']:.2f} % RMS of the "
+              f"face size; the detected points move {ident['reproduced']:.2f} of it "
+              f"(correlation {ident['correlation']:.2f}), the rest {ident['rest_rms_percent']:.2f} % RMS")
+    # the faces every detector found (the easier ones), where they compare like for like; the
+    # true points as a detector without error
+    every = np.logical_and.reduce([np.isfinite(p).all((1, 2)) for p in found.values()])
+    found["true points"] = np.where(faces["defined68"][..., None], faces["points68"], np.nan)
+    common = report["identity_common_faces"] = {"faces": int(every.sum())}
+    for m, p in found.items():
+        p = np.where(every[:, None, None], p, np.nan)
+        common[m] = {**identity_signal(p, faces),
+                     **identity_fit_error(eng.model, p, faces, args.resolution)}
+    print(f"\nthe {common['faces']} faces every detector found:\n\n| points | identity reproduced "
+          "| correlation | fitted identity, mm | mean face, mm |\n| --- | ---: | ---: | ---: | ---: |")
+    for m, r in common.items():
+        if m != "faces":
+            print(f"| {m} | {r['reproduced']:.2f} | {r['correlation']:.2f} | {r['fit_mm']:.3f} | "
+                  f"{r['mean_face_mm']:.3f} |")
     report["seconds"] = round(time.perf_counter() - t0, 1)
     print(f"{args.n} faces drawn in {t_draw:.0f} s, {report['seconds']:.0f} s in all", file=sys.stderr)
     if args.report:

@@ -71,11 +71,11 @@ def refine_from_truth(scan, model, conditions=tuple(CONDITIONS), *,
         return float(np.linalg.norm(v - truth, axis=1).mean())
 
     for c in conditions:
-        lm, size, desc, frames = video_landmarks(scan, model, c, n_sampled, n_frames, seed,
-                                                 with_frames=True)
-        fit = fit_landmarks(model, np.asarray(lm, dtype=np.float64), list(size),
-                            shared_identity=False, camera="perspective",
-                            focal_px=desc["focal_px"], landmark_std_px="auto")
+        video, _ = video_landmarks(scan, model, c, n_sampled, n_frames, seed, with_frames=True)
+        frames = video.images
+        fit = fit_landmarks(model, np.asarray(video.landmarks, dtype=np.float64),
+                            list(video.image_size), shared_identity=False, camera="perspective",
+                            focal_px=video.focal_px, landmark_std_px="auto")
         cell = {v: {"landmark": [], "surface": []} for v in variants}
         for i, image in enumerate(frames):
             at_truth = dataclasses.replace(fit, frame_identity=fit.frame_identity.copy(),

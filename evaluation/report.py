@@ -22,7 +22,7 @@ from tqdm import tqdm
 from morphable.errors import FitError, InputError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .florence.methods import Frames, prepare_methods, reconstruct_video
+from .florence.methods import prepare_methods, reconstruct_video
 from .florence.protocol import evaluate, video_landmarks
 from .scans import UNITS, load_scan
 from .videos import CONDITIONS
@@ -75,9 +75,8 @@ def run(scan, model, methods, conditions, seed: int = 0, video_frames: int = 30,
             per, secs = {}, []
             for c in conditions:
                 bar.set_postfix_str(f"{m}, {effort['label']}, {c}", refresh=False)
-                lm, size, desc, images = videos[(c, effort["frames"])]
                 try:
-                    rec = reconstruct_video(made[m], Frames(lm, size, images, desc.get("focal_px")),
+                    rec = reconstruct_video(made[m], videos[(c, effort["frames"])][0],
                                             effort["settings"])
                     cell, _ = evaluate(rec, scan)
                 except FitError as e:

@@ -35,7 +35,7 @@ from morphable.video import sample_indices
 
 __all__ = ["Condition", "CONDITIONS", "Video", "frontal_frame", "trajectory", "sample_frames",
            "project_landmarks", "synthetic_video", "render_frames", "write_rendered_video",
-           "detect_landmarks"]
+           "detect_face", "detected_points"]
 
 
 @dataclass(frozen=True)
@@ -333,21 +333,45 @@ def write_rendered_video(scan, video: Video, path, seed: int = 0, fps: float = 3
     return write_video(path, (as_image(f)[0] for f in frames), fps=fps)
 
 
-def detect_landmarks(image, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
-    """Landmarks of the largest face (:func:`morphable.detection.detect_landmarks`) -> (L, 2)
-    px: the face mesh's (or the landmark network's) 478 or dlib's 68; all NaN when no face is found, so that the frame is
-    simply not used.
+def detect_face(image, landmark_detector: str = "auto", face_detector: str = "auto"):
+    """The largest face of a frame (:func:`morphable.detection.detect`) ->
+    :class:`~morphable.detection.result.Detection` (points, and σ where the detector predicts
+    one), or None when no face is found, so that the frame is simply not used.
 
     Parameters
     ----------
     image : (H, W, 3) uint8 or float in [0, 1]
-    landmark_detector, face_detector : see :func:`morphable.detection.detect_landmarks`
+    landmark_detector, face_detector : see :func:`morphable.detection.detect`
     """
-    from morphable.detection import detect_landmarks as detect
-    from morphable.detection import landmark_count
+    from morphable.detection import detect
     from morphable.errors import FitError
 
     try:
         return detect(image, landmark_detector=landmark_detector, face_detector=face_detector)
     except FitError:
-        return np.full((landmark_count(landmark_detector, face_detector), 2), np.nan)
+        return None
+
+
+def detected_points(detections, n_points: int):
+    """The frames' landmarks and their noise for a fit, from one :func:`detect_face` result
+    per frame (None: no face).
+
+    Parameters
+    ----------
+    detections : list of Detection or None, one per frame
+    n_points : 478 or 68, the rows per frame (68: the iBUG points of any detector)
+
+    Returns
+    -------
+    points : (N, n_points, 2) float64 px, all NaN for a frame without a face
+    sigma_px : (N, n_points) float64 px, each point's predicted error, or None when no
+        detection gives one (1 px for frames without a face: they have no points)
+    """
+    from morphable.detection.result import landmark_noise
+
+    points = np.full((len(detections), n_points, 2), np.nan)
+    for i, d in enumerate(detections):
+        if d is not None:
+            points[i] = d.points if len(d.points) == n_points else d.ibug68
+    sigma = landmark_noise(detections, 1.0, n_points)
+    return points, None if np.ndim(sigma) == 0 else sigma

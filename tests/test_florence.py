@@ -365,8 +365,9 @@ def test_ours_fits_a_pinhole_camera_where_the_focal_is_known(james, sfm):
     from evaluation.florence.methods import Frames, prepare_methods, reconstruct_video
     from evaluation.florence.protocol import video_landmarks
 
-    lm, size, desc, _ = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0)
-    assert desc["focal_px"] > 0
+    video, desc = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0)
+    lm, size = video.landmarks, video.image_size
+    assert desc["focal_px"] > 0 and video.focal_px == desc["focal_px"]
     ours = prepare_methods(["ours"], sfm, james)["ours"]
     pinhole = reconstruct_video(ours, Frames(lm, size, focal_px=desc["focal_px"]))
     affine = reconstruct_video(ours, Frames(lm, size))
@@ -391,8 +392,8 @@ def test_detected_frames_get_the_detectors_error(james, sfm):
     from evaluation.florence.methods import Frames, prepare_methods, reconstruct_video
     from evaluation.florence.protocol import video_landmarks
 
-    lm, size, desc, _ = video_landmarks(james, sfm, "indoor", 3, 6, seed=0)
-    f = desc["focal_px"]
+    video, _ = video_landmarks(james, sfm, "indoor", 3, 6, seed=0)
+    lm, size, f = video.landmarks, video.image_size, video.focal_px
     made = prepare_methods(["ours", "ours-independent"], sfm, james)
     for method in ("ours", "ours-independent"):
         mixed = reconstruct_video(made[method], Frames(lm, size, focal_px=f,
@@ -591,10 +592,11 @@ def test_detected_landmarks_on_rendered_frames(james, sfm, detector, package):
     from evaluation.florence.protocol import video_landmarks
     from evaluation.videos import synthetic_video
 
-    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0,
-                                             detect=(detector, "auto"))
-    assert frames is None
-    assert desc["landmarks"].startswith(detector) and size == (256, 256)
+    video, desc = video_landmarks(james, sfm, "outdoor", 2, 6, seed=0, detect=(detector, "auto"))
+    lm = video.landmarks
+    # neither detector predicts a σ: the fit estimates the noise
+    assert video.images is None and video.landmark_std_px is None
+    assert desc["landmarks"].startswith(detector) and video.image_size == (256, 256)
     # the detector's own points reach the methods: the face mesh's 478, dlib's 68
     assert lm.shape == (2, 478 if detector == "facemesh" else 68, 2)
     truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
@@ -603,6 +605,58 @@ def test_detected_landmarks_on_rendered_frames(james, sfm, detector, package):
     # the report says how far the detector is from the projected scan landmarks (no noise)
     err = desc["detector_error_px"]
     assert err["frames_detected"] == 2 and 0.5 < err["inner_rms"] < 15.0 and err["jaw_rms"] > 0
+
+
+def test_detected_points_take_each_detections_rows_and_sigma():
+    from morphable.detection.result import Detection
+    from evaluation.videos import detected_points
+
+    rng = np.random.default_rng(0)
+    pts, sig = rng.uniform(0, 100, (478, 2)), rng.uniform(0.5, 4.0, 478)
+    ib, ib_sig = rng.uniform(0, 100, (68, 2)), rng.uniform(0.5, 4.0, 68)
+    net = Detection(pts, sig, ib, ib_sig, "facemesh478", "3d", "network full-range")
+    mesh = Detection(pts, None, ib, None, "facemesh478", "3d", "facemesh full-range")
+    lm, std = detected_points([net, None], 478)
+    np.testing.assert_array_equal(lm[0], pts)
+    assert np.isnan(lm[1]).all() and std.shape == (2, 478)
+    np.testing.assert_array_equal(std[0], sig)
+    assert (std[1] == 1.0).all()                   # a frame without a face has no points
+    lm, std = detected_points([net, mesh], 68)     # the iBUG rows and their σ
+    np.testing.assert_array_equal(lm, [ib, ib])
+    np.testing.assert_array_equal(std[0], ib_sig)
+    assert detected_points([mesh], 478)[1] is None  # no σ: the fit estimates the noise
+
+
+def test_a_detectors_sigma_reaches_the_florence_fit(james, sfm, monkeypatch):
+    # a detector that predicts σ (the landmark network) has each point fitted with it, not
+    # with one estimated noise; a frame without a face is left out
+    pytest.importorskip("dlib")
+    from morphable.detection.result import Detection
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.options import detected_settings
+
+    from evaluation import videos
+    from evaluation.florence.methods import prepare_methods, reconstruct_video
+    from evaluation.florence.protocol import video_landmarks
+
+    truth, _ = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0)
+    rng = np.random.default_rng(1)
+    sigma = rng.uniform(0.5, 4.0, (2, 68))
+    found = [Detection(np.nan_to_num(truth.landmarks[i], nan=50.0), sigma[i],
+                       np.nan_to_num(truth.landmarks[i], nan=50.0), sigma[i], "ibug68", "2d",
+                       "stub") for i in range(2)] + [None]
+    monkeypatch.setattr(videos, "detect_face", lambda image, *detector: found.pop(0))
+    video, desc = video_landmarks(james, sfm, "cooperative", 3, 6, seed=0, detect=("dlib", "auto"))
+    assert video.landmark_std_px.shape == (3, 68) and np.isnan(video.landmarks[2]).all()
+    np.testing.assert_array_equal(video.landmark_std_px[:2], sigma)
+    ours = prepare_methods(["ours"], sfm, james)["ours"]
+    rec = reconstruct_video(ours, video)
+    same = fit_landmarks(sfm, video.landmarks[:2], video.image_size, camera="perspective",
+                         focal_px=video.focal_px, landmark_std_px=sigma,
+                         **detected_settings([True, True], 68))
+    np.testing.assert_allclose(rec.vertices, same.vertices().mean(0)[rec.vertex_ids])
+    estimated = reconstruct_video(ours, video, {"landmark_std_px": "auto"})
+    assert not np.allclose(rec.vertices, estimated.vertices)
 
 
 def test_detector_error():
@@ -636,10 +690,11 @@ def test_real_frames_folder(james, sfm, tmp_path):
     assert report["videos"]["indoor"]["source"].endswith("indoor")
     assert 0.2 < report["methods"]["eos"]["indoor"]["mean_mm"] < 5.0
     # the frames themselves (for --methods gar), read once with their landmarks
-    lm, size, _, frames = video_landmarks(james, sfm, "indoor", 2, 6, 1, frames_dir=tmp_path / "james",
-                                          with_frames=True)
+    read, _ = video_landmarks(james, sfm, "indoor", 2, 6, 1, frames_dir=tmp_path / "james",
+                              with_frames=True)
     W, H = video.image_size
-    assert size == (W, H) and frames.shape == (2, H, W, 3) and frames.max() == 0.0
+    assert read.image_size == (W, H) and read.images.shape == (2, H, W, 3)
+    assert read.images.max() == 0.0 and not read.detected.any()
     with pytest.raises(InputError, match="no frames"):
         run_protocol(james, sfm, ["mean-face"], ["outdoor"], n_sampled=2, frames_dir=tmp_path / "james")
 
@@ -655,12 +710,14 @@ def test_protocol_on_a_real_video(james, james_paths, sfm, tmp_path):
     video = synthetic_video(james, "outdoor", sfm.landmark_positions(), n_frames=6, n_sampled=2)
     clip = write_rendered_video(james, video, tmp_path / "outdoor.mp4")
     detect = ("dlib", "auto")
-    lm, size, desc, frames = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect,
-                                             video=clip, with_frames=True)
-    assert size == (256, 256) and lm.shape == (2, 68, 2) and frames.shape == (2, 256, 256, 3)
+    read, desc = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect, video=clip,
+                                 with_frames=True)
+    lm = read.landmarks
+    assert read.image_size == (256, 256) and lm.shape == (2, 68, 2)
+    assert read.images.shape == (2, 256, 256, 3) and read.detected.all()
     assert desc["frames"] == [0, 5] and desc["times_s"] == [0.0, round(5 / 30, 4)]
     assert desc["landmarks"] == "dlib hog on video frames" and desc["frames_without_face"] == []
-    rendered, _, _, _ = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect)
+    rendered = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect)[0].landmarks
     # the same frames, 8-bit and H.264 on one side: the detector moves by about a pixel
     assert np.median(np.linalg.norm(lm - rendered, axis=-1)) < 2.0
     report, errors = run_protocol(james, sfm, ["eos", "mean-face"], ["indoor"], n_sampled=2,
@@ -735,7 +792,7 @@ def test_subjects_wear_a_photos_colours(sfm, data_dir):
     assert colors.shape == (sfm.n_vertices, 3) and 0 <= colors.min() and colors.max() <= 1
     scan = model_scan(sfm, 3, colors=colors)
     assert scan.colors.shape == scan.vertices.shape
-    lm, _, desc, _ = video_landmarks(scan, sfm, "cooperative", 2, 6, seed=0, detect=("dlib", "auto"))
+    lm = video_landmarks(scan, sfm, "cooperative", 2, 6, seed=0, detect=("dlib", "auto"))[0].landmarks
     video = synthetic_video(scan, "cooperative", sfm.landmark_positions(), 6, 2, seed=0)
     truth = project_landmarks(scan, video.sampled_cameras(),
                               frontal_frame(scan.landmarks, sfm.landmark_positions()))

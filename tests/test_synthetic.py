@@ -109,3 +109,47 @@ def test_builder_resumes(tmp_path):
     r = _build(out, "--resolution", "24")
     assert r.returncode == 2 and "other settings" in r.stderr and len(r.stderr.splitlines()) == 1
     assert load_pack(out)["image"].shape == (5, 16, 16, 3)
+
+
+def test_validation_faces_give_the_mean_identitys_points(engine):
+    # the same face with the mean identity: same camera and expression, so the offsets are
+    # the identity's own, a few percent of the face
+    from evaluation.facemesh_synthetic import validation_faces
+
+    faces = validation_faces(engine, 3, seed=5)
+    off = faces["mean68"] - faces["points68"]
+    size = np.ptp(np.nan_to_num(faces["points68"][:, :17]), axis=1).max(1)
+    rms = np.sqrt(np.nanmean((off ** 2).sum(-1), 1)) / size
+    assert faces["mean68"].shape == (3, 68, 2) and ((0.005 < rms) & (rms < 0.15)).all(), rms
+    # a fit to the exact points comes nearer the true identity than the mean face; a face not
+    # found is left out
+    from evaluation.facemesh_synthetic import identity_fit_error
+
+    exact = np.where(faces["defined68"][..., None], faces["points68"], np.nan)
+    exact[1] = np.nan
+    r = identity_fit_error(engine.model, exact, faces, 32)
+    assert r["faces"] == 2 and r["fit_mm"] < r["mean_face_mm"], r
+
+
+def test_identity_signal_measures_the_share_of_the_identity_the_points_carry():
+    from evaluation.facemesh_synthetic import identity_signal
+
+    rng = np.random.default_rng(0)
+    n = 200
+    mean = rng.uniform(40, 60, (n, 68, 2))
+    mean[:, 0], mean[:, 1] = [10, 10], [90, 90]         # every face's box: 80 px
+    ident = rng.normal(0, 1.0, (n, 68, 2))
+    ident[:, :2] = 0
+    faces = {"points68": mean + ident, "mean68": mean, "defined68": np.ones((n, 68), bool),
+             "visible68": np.ones((n, 68), bool)}
+    faces["defined68"][:, 60] = False                   # a point the model does not define
+    bias = rng.normal(0, 3.0, (68, 2))                  # a definition every face shares
+    for share in (0.0, 0.5, 1.0):
+        pred = mean + share * ident + bias + rng.normal(0, 0.5, ident.shape)
+        pred[:5] = np.nan                               # faces not found are left out
+        r = identity_signal(pred, faces)
+        assert r["faces"] == n - 5 and abs(r["reproduced"] - share) < 0.05, (share, r)
+        assert 0.8 * 100 * np.sqrt(2) / 80 < r["identity_rms_percent"] < 1.2 * 100 * np.sqrt(2) / 80
+    assert r["correlation"] > 0.85 and r["rest_rms_percent"] < 1.0
+    exact = identity_signal(faces["points68"], faces)  # the true points: all of it, nothing else
+    assert np.isclose(exact["reproduced"], 1) and np.isclose(exact["correlation"], 1)

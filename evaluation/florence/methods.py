@@ -43,6 +43,8 @@ class Frames:
         only when a method has ``needs_images``)
     focal_px : the video camera's focal length (px) when known, else None
     detected : (N,) bool, the frames whose landmarks a detector found, or None
+    landmark_std_px : (N, L) px, each point's predicted error where the detector gives one (the
+        landmark network), else None
     """
 
     landmarks: np.ndarray
@@ -50,6 +52,7 @@ class Frames:
     images: np.ndarray | None = None
     focal_px: float | None = None
     detected: np.ndarray | None = None
+    landmark_std_px: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.landmarks)
@@ -143,10 +146,11 @@ class Method:
         raise NotImplementedError
 
 
-def _video_fit_options(settings: dict, focal_px, detected=None, n_landmarks: int = 68) -> dict:
+def _video_fit_options(settings: dict, frames: Frames) -> dict:
     """Landmark-fit settings for a video's frames: a pinhole camera with the video's focal
     length when it is known (unless ``settings["camera"]`` says otherwise), the landmark
-    noise estimated (a video's is unknown: detector, resolution, blur) unless set, and for
+    noise the detector's σ where it gives one, else estimated (a video's is unknown:
+    detector, resolution, blur), unless set, and for
     frames whose landmarks were detected ((N,) bool ``detected``, ``n_landmarks`` points
     each) the detector's settings (:func:`morphable.fitting.options.detected_settings`: its
     model error, its frames one look at the face in a shared fit, the face mesh's
@@ -154,12 +158,14 @@ def _video_fit_options(settings: dict, focal_px, detected=None, n_landmarks: int
     from morphable.fitting.options import detected_settings
 
     out = dict(settings)
+    focal_px, detected = frames.focal_px, frames.detected
     out.setdefault("camera", "perspective" if focal_px is not None else "affine")
     if out["camera"] == "perspective" and focal_px is not None:
         out.setdefault("focal_px", focal_px)
-    out.setdefault("landmark_std_px", "auto")
+    out.setdefault("landmark_std_px", "auto" if frames.landmark_std_px is None
+                   else frames.landmark_std_px)
     if detected is not None and np.any(detected):
-        for k, v in detected_settings(detected, n_landmarks).items():
+        for k, v in detected_settings(detected, np.shape(frames.landmarks)[1]).items():
             if k != "convention" or "contour" not in out:
                 out.setdefault(k, v)
     return out
@@ -172,8 +178,9 @@ class Ours(Method):
 
     ``settings``: the fit's keyword arguments (``n_iterations``, ``n_identity``...). A pinhole
     camera with the video's focal length where it is known (unless ``settings["camera"]`` is
-    "affine"), else an affine one; the landmark noise estimated (``landmark_std_px="auto"``)
-    and, for detected frames, the detector's model error
+    "affine"), else an affine one; the landmark noise the detector's σ where it gives one
+    (``Frames.landmark_std_px``), else estimated (``landmark_std_px="auto"``); and, for
+    detected frames, the detector's model error
     (:data:`morphable.fitting.noise.DETECTED_MODEL_STD_MM`), unless ``settings`` give
     ``landmark_std_px`` / ``model_std_mm``.
     """
@@ -190,8 +197,7 @@ class Ours(Method):
         self.fit_landmarks = fit_landmarks
 
     def reconstruct(self, frames: Frames, settings: dict) -> Reconstruction:
-        options = _video_fit_options(settings, frames.focal_px, frames.detected,
-                                     np.shape(frames.landmarks)[1])
+        options = _video_fit_options(settings, frames)
         t = time.perf_counter()
         res = self.fit_landmarks(self.model, frames.landmarks, frames.image_size,
                                  shared_identity=self.shared_identity, **options)
@@ -344,7 +350,7 @@ class Gar(Method):
         verts, reports = self.refine_frames(
             self.model, np.asarray(frames.images), frames.landmarks, self.renderer,
             steps=int(settings.get("steps", 100)), weights=settings.get("weights"),
-            fit_options=_video_fit_options({}, frames.focal_px, frames.detected))
+            fit_options=_video_fit_options({}, frames))
         dt = time.perf_counter() - t
         return Reconstruction.from_vertices(self.model, verts.mean(0), dt, len(frames), {
             "photometric_loss_first_last": [[r["photometric_loss"][0], r["photometric_loss"][-1]]
@@ -385,5 +391,6 @@ def reconstruct_video(method: Method, frames: Frames, settings: dict | None = No
     kept = Frames(lm[usable], frames.image_size,
                   None if frames.images is None else np.asarray(frames.images)[usable],
                   frames.focal_px,
-                  None if frames.detected is None else np.asarray(frames.detected, dtype=bool)[usable])
+                  None if frames.detected is None else np.asarray(frames.detected, dtype=bool)[usable],
+                  None if frames.landmark_std_px is None else np.asarray(frames.landmark_std_px)[usable])
     return method.reconstruct(kept, dict(settings or {}))

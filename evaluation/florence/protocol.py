@@ -9,6 +9,7 @@ subjects sampled from a model; :func:`format_table` prints the result.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -121,14 +122,17 @@ def save_heatmap(path, vertices, triangles, errors, frame, max_mm: float = 4.0, 
 
 
 def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool = False,
-                        detector=("auto", "auto")):
-    """Sampled landmarks of real frames in ``folder/<condition>/`` -> ((k, L, 2), (W, H),
-    the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None, (k,) bool: the
-    frames without a ``.pts`` whose landmarks were detected, with ``detector`` =
-    (landmark detector, face detector) of :func:`morphable.detection.detect_landmarks`)."""
+                        detector=("auto", "auto")) -> Frames:
+    """The ``k`` sampled real frames of ``folder/<condition>/`` -> :class:`Frames`: each
+    frame's ``.pts`` landmarks, or where it has none its landmarks (and σ) detected with
+    ``detector`` = (landmark detector, face detector) of :func:`morphable.detection.detect`;
+    the frames themselves when ``with_frames``."""
     from PIL import Image
 
+    from morphable.detection import landmark_count
     from morphable.io.landmark_files import read_pts
+
+    from ..videos import detect_face, detected_points
 
     d = folder / condition
     frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
@@ -141,39 +145,36 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
     if len(sizes) != 1:
         raise InputError(f"{d}: frames have different sizes {sorted(sizes)}")
     detected = np.array([not p.with_suffix(".pts").is_file() for p in chosen])
-    out, images = [], []
-    for p, found in zip(chosen, detected):
-        image = np.asarray(Image.open(p).convert("RGB")) if with_frames or found else None
-        if found:
-            from ..videos import detect_landmarks
-
-            out.append(detect_landmarks(image, *detector))
-        else:
-            out.append(read_pts(p.with_suffix(".pts")))
-        images.append(image)
-    from morphable.fitting.files import one_landmark_set
-
-    # .pts files and face-mesh detections: one set (68) for all
-    return (one_landmark_set(out), sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
-            detected)
+    annotated = {i: read_pts(p.with_suffix(".pts")) for i, p in enumerate(chosen) if not detected[i]}
+    # .pts files (68 points) and detections of 478 are fitted as one set of 68
+    n = landmark_count(*detector) if detected.all() else 68
+    images = [np.asarray(Image.open(p).convert("RGB")) if with_frames or found else None
+              for p, found in zip(chosen, detected)]
+    found = [detect_face(im, *detector) if ok else None for im, ok in zip(images, detected)]
+    lm, sigma = detected_points(found, n)
+    for i, pts in annotated.items():
+        lm[i] = pts
+    return Frames(lm, sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
+                  detected=detected, landmark_std_px=sigma)
 
 
 def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("auto", "auto")):
     """The Florence protocol's frames of a real video: ``k`` frames spread uniformly
-    (:func:`morphable.video.sample_frames`, all of a shorter video), their landmarks detected
-    (:func:`evaluation.videos.detect_landmarks`, ``detector`` = (landmark detector, face
-    detector)) -> ((k, L, 2) px, NaN rows for frames without a face, (W, H) px, description
-    for the report, the frames (k, H, W, 3) float in [0, 1] when ``with_frames``, else None).
+    (:func:`morphable.video.sample_frames`, all of a shorter video), their landmarks (and σ)
+    detected (:func:`evaluation.videos.detect_face`, ``detector`` = (landmark detector, face
+    detector)) -> (:class:`Frames`: NaN rows for frames without a face, the frames themselves
+    when ``with_frames``; description for the report).
 
     InputError naming the file when it is no readable video or no sampled frame shows a face.
     """
-    from morphable.detection import describe
+    from morphable.detection import describe, landmark_count
     from morphable.video import sample_frames
 
-    from ..videos import detect_landmarks
+    from ..videos import detect_face, detected_points
 
     frames = sample_frames(path, k)
-    lm = np.stack([detect_landmarks(f.image, *detector) for f in frames])
+    lm, sigma = detected_points([detect_face(f.image, *detector) for f in frames],
+                                landmark_count(*detector))
     found = np.isfinite(lm).all(-1).any(-1)
     if not found.any():
         raise InputError(f"{path}: no face found in any of the {len(frames)} sampled frames")
@@ -183,44 +184,46 @@ def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("au
             "frames_without_face": [f.index for f, ok in zip(frames, found) if not ok],
             "detected": [True] * len(frames), "n_landmarks": np.isfinite(lm[..., 0]).sum(1).tolist()}
     images = np.stack([f.image for f in frames]) / 255.0 if with_frames else None
-    return lm, frames[0].size, desc, images
+    return Frames(lm, frames[0].size, images, detected=np.ones(len(frames), dtype=bool),
+                  landmark_std_px=sigma), desc
 
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
-                    detect=None, frames_dir=None, with_frames: bool = False, video=None):
-    """Landmarks of the sampled frames of one video -> ((k, L, 2) px (68, or the face mesh's
-    478 when it detected them), (W, H), description,
-    frames): ``frames`` (k, H, W, 3) float in [0, 1] — rendered from the scan, or read from
-    ``frames_dir`` or ``video`` — when ``with_frames``, else None. ``detect``: None (projected
-    scan landmarks) or (landmark detector, face detector) run on the rendered frames (and on
-    the frames of ``frames_dir`` that have no ``.pts``, and always on those of ``video``, a
-    real video file: :func:`frames_from_video`)."""
+                    detect=None, frames_dir=None, with_frames: bool = False,
+                    video=None) -> tuple[Frames, dict]:
+    """The sampled frames of one video -> (:class:`Frames`, description for the report).
+
+    The frames' landmarks: 68, or the 478 of the face mesh or the landmark network when they
+    detected them, with the network's σ; ``Frames.images`` (k, H, W, 3) float in [0, 1] —
+    rendered from the scan, or read from ``frames_dir`` or ``video`` — when ``with_frames``.
+    ``detect``: None (projected scan landmarks) or (landmark detector, face detector) run on
+    the rendered frames (and on the frames of ``frames_dir`` that have no ``.pts``, and always
+    on those of ``video``, a real video file: :func:`frames_from_video`)."""
     if video is not None:
-        lm, size, desc, frames = frames_from_video(video, n_sampled, with_frames,
-                                                   detect or ("auto", "auto"))
-        return lm, size, desc, frames
+        return frames_from_video(video, n_sampled, with_frames, detect or ("auto", "auto"))
     if frames_dir is not None:
-        lm, size, frames, detected = _frames_from_folder(Path(frames_dir), condition, n_sampled,
-                                                         with_frames, detect or ("auto", "auto"))
-        return lm, size, {"source": str(Path(frames_dir) / condition),
-                          "detected": detected.tolist()}, frames
+        frames = _frames_from_folder(Path(frames_dir), condition, n_sampled, with_frames,
+                                     detect or ("auto", "auto"))
+        return frames, {"source": str(Path(frames_dir) / condition),
+                        "detected": frames.detected.tolist()}
     video = synthetic_video(scan, condition, model.landmark_positions(), n_frames=n_frames,
                             n_sampled=n_sampled, seed=seed)
-    lm = video.sampled_landmarks()
+    lm, sigma = video.sampled_landmarks(), None
     desc = {"source": "synthetic", "poses_deg": video.poses_deg[video.sampled].round(2).tolist(),
             "frames": video.sampled.tolist(), "image_size": list(video.image_size),
             "focal_px": float(video.cameras[0].focal)}
-    frames = None
+    images = None
     if detect or with_frames:
         from ..videos import render_frames
 
-        frames = render_frames(scan, video, seed=seed)
+        images = render_frames(scan, video, seed=seed)
     if detect:
-        from ..videos import detect_landmarks, frontal_frame, project_landmarks
+        from morphable.detection import describe, landmark_count
 
-        from morphable.detection import describe
+        from ..videos import detect_face, detected_points, frontal_frame, project_landmarks
 
-        lm = np.stack([detect_landmarks(im, *detect) for im in frames])
+        lm, sigma = detected_points([detect_face(im, *detect) for im in images],
+                                    landmark_count(*detect))
         desc["landmarks"] = f"{describe(*detect)} on rendered frames"
         # how far the detector is from the scan's own landmarks, projected without noise
         truth = project_landmarks(scan, video.sampled_cameras(),
@@ -230,7 +233,8 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
         desc["landmarks"] = "projected scan landmarks + noise"
     desc["detected"] = [bool(detect)] * len(lm)
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
-    return lm, video.image_size, desc, frames if with_frames else None
+    return Frames(lm, video.image_size, images if with_frames else None, desc["focal_px"],
+                  np.array(desc["detected"]), sigma), desc
 
 
 def _detect_setting(detect):
@@ -292,9 +296,10 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                unit="cell")
     for c in conditions:
         bar.set_postfix_str(f"{c} video", refresh=False)
-        lm, size, desc, images = read.pop(c, None) or video_landmarks(
+        frames, desc = read.pop(c, None) or video_landmarks(
             scan, model, c, n_sampled, n_frames, seed, detect, frames_dir, with_frames=with_frames)
-        frames = Frames(lm, size, images, desc.get("focal_px", focal_px), desc.get("detected"))
+        if frames.focal_px is None:
+            frames = dataclasses.replace(frames, focal_px=focal_px)
         report["videos"][c] = desc
         for m in methods:
             bar.set_postfix_str(f"{m}, {c}", refresh=False)
