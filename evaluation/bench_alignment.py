@@ -11,6 +11,8 @@ Methods, each run on every photo of a set:
   refinement moves the 68 points towards or away from the ground truth;
 - ``network``: the landmark network's own 68 rows (``landmark_detector="network"``, its
   weights from ``$MORPHABLE_LANDMARK_WEIGHTS`` or the committed ones; by name only);
+- ``ours``: our fit with the default detector (``landmark_detector="auto"``: the face mesh,
+  and the network for a face the face mesh does not find), as ``morphable fit IMAGE`` runs;
 - ``ours-dlib``, ``ours-facemesh``, ``ours-network``: our fit (SFM, one frame) to the detector's points,
   made as ``morphable fit`` makes it (:func:`morphable.fitting.options.detection_settings`:
   the face mesh's and the network's 478 points in the 3D convention, the network's σ); its
@@ -36,7 +38,7 @@ faces are stored once per annotated face, so "the largest face" would score anot
 dlib's shape predictor was
 trained on 300-W's training images, which include AFW: its figure there is optimistic.
 
-Times are wall ms per photo (detection, plus the fit for ``ours-*``), median over the photos.
+Times are wall ms per photo (detection, plus the fit for ``ours`` and ``ours-*``), median over the photos.
 
     python -m evaluation.bench_alignment --set aflw2000 300w --report reports/bench_alignment.json
 """
@@ -59,10 +61,15 @@ __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "re
            "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
            "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
 
-METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh")
+METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh", "ours")
 NETWORK_METHODS = ("network", "ours-network")
 """The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
 :mod:`neural.landmark_detector`; chosen by name, not run by default)."""
+
+
+def _fitted(method: str) -> bool:
+    """Whether ``method`` is one of our fits (scored by its projected points) or a detector."""
+    return method == "ours" or method.startswith("ours-")
 
 
 def refined_methods(methods) -> tuple:
@@ -239,7 +246,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     from morphable.fitting.options import detection_settings
 
     method, _, renderer = method.partition("+")
-    detector = method.removeprefix("ours-")
+    fitted = _fitted(method)
+    detector = "auto" if method == "ours" else method.removeprefix("ours-")
     refined = refiner(renderer, steps, renderer_options, loss_weights)
     N = len(paths)
     pred = np.full((N, 68, 2), np.nan)
@@ -262,7 +270,7 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 if not len(faces) or overlap.max() < 0.3:
                     raise FitError(f"{name}: no detected face on the annotated one")
                 box = faces[int(np.argmax(overlap))]
-            if method.startswith("ours-"):
+            if fitted:
                 found = detect(img, landmark_detector=detector, box=box)
                 res = fit_landmarks(model, found.points, (img.shape[1], img.shape[0]),
                                     **detection_settings([found], len(found.points)))
@@ -295,7 +303,7 @@ def _aflw2000(methods, root, n, model, box_source="detect", **refine) -> dict:
         row = yaw_table(e, d["yaw_deg"])
         row["median_ms"] = float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None
         row["failures"] = int(np.isnan(e).sum())
-        if m.startswith("ours-"):
+        if _fitted(m):
             ok = np.isfinite(r["euler_deg"][:, 0])
             err = np.abs(aflw_angles(r["euler_deg"][ok]) - d["pose_deg"][ok])
             err = np.minimum(err, 360.0 - err)          # a few dataset angles are unwrapped
@@ -375,7 +383,7 @@ def main(argv=None):
     from morphable import load_model
 
     root = a.data or data_root()
-    model = load_model(a.model) if any(m.startswith("ours-") for m in a.methods) else None
+    model = load_model(a.model) if any(_fitted(m) for m in a.methods) else None
     report = {"n": a.n, "model": a.model}
     refine = refine_options(a)
     if any("+" in m for m in a.methods):

@@ -26,9 +26,12 @@ from morphable.errors import InputError
 from .landmark_net import crop_images, crop_theta, image_to_crop
 from .landmark_set import box_side, face_box, mirror_index
 
-__all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "SPLITS"]
+__all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "negative_crops",
+           "NEGATIVE_KINDS", "SPLITS"]
 
 SPLITS = {"train": 0, "validation": 1, "test": 2}
+NEGATIVE_KINDS = ("away", "part", "texture")
+"""The crops without a whole face that :func:`negative_crops` makes."""
 
 
 class LandmarkSource:
@@ -200,3 +203,58 @@ def validation_batch(source: LandmarkSource, config, n: int = 256, seed: int = 0
     return {"image": x, "points": q, "weight": w, "face": torch.ones(len(index)),
             "index": index}
 
+
+
+def negative_crops(source: LandmarkSource, config, n: int, kind: str, seed: int = 0) -> torch.Tensor:
+    """``n`` crops that hold no whole face -> (n, 3, R, R) in [-1, 1], colour-jittered as
+    training crops are.
+
+    kind : "away": a box about the face's size at least 0.8 of a side away from it (the
+        training's negatives, :func:`draw_batch`); "part": a box 0.25-0.45 of the face box's
+        side inside the face (an eye, the mouth, a cheek: a face detector's false box); or
+        "texture": no photo at all, noise (uniform or Gaussian, grey or coloured, at one of
+        four grain sizes), flat colours and linear gradients
+    """
+    if kind not in NEGATIVE_KINDS:
+        raise InputError(f"negative crops: kind must be one of {', '.join(NEGATIVE_KINDS)}, got {kind!r}")
+    gen = torch.Generator().manual_seed(int(np.random.SeedSequence([config.seed, seed, 7])
+                                            .generate_state(1)[0]))
+    R = config.resolution
+    if kind == "texture":
+        return _colour_jitter(_textures(n, R, gen), gen)
+    index = torch.randint(len(source), (n,), generator=gen)
+    if kind == "away":
+        x, _, _ = _crops(source, index, config, gen, torch.ones(n, dtype=torch.bool), jitter=True)
+        return _colour_jitter(x, gen)
+    img = source.images[index].permute(0, 3, 1, 2).float() / 127.5 - 1
+    box = source.boxes[index]
+    s = box_side(box)
+    c = (box[:, :2] + box[:, 2:]) / 2 + (torch.rand(n, 2, generator=gen) - 0.5) * 0.6 * s[:, None]
+    side = _uniform(gen, n, 0.25, 0.45) * s
+    parts = torch.cat([c - side[:, None] / 2, c + side[:, None] / 2], 1)
+    theta = crop_theta(parts, (img.shape[-1], img.shape[-2]))
+    return _colour_jitter(crop_images(img, theta, R), gen)
+
+
+def _textures(n: int, R: int, gen) -> torch.Tensor:
+    """(n, 3, R, R) in [-1, 1]: noise, flat colours and gradients in equal shares."""
+    out = torch.empty(n, 3, R, R)
+    kind = torch.randint(3, (n,), generator=gen)
+    for i in range(n):
+        if kind[i] == 0:      # noise at one of four grain sizes, grey or coloured
+            grain = 2 ** int(torch.randint(4, (1,), generator=gen))
+            ch = 3 if torch.rand(1, generator=gen) < 0.5 else 1
+            small = (torch.rand(1, ch, R // grain, R // grain, generator=gen) * 2 - 1
+                     if torch.rand(1, generator=gen) < 0.5 else
+                     (0.5 * torch.randn(1, ch, R // grain, R // grain, generator=gen)).clamp(-1, 1))
+            out[i] = torch.nn.functional.interpolate(small, size=(R, R), mode="bilinear",
+                                                     align_corners=False)[0].expand(3, R, R)
+        elif kind[i] == 1:
+            out[i] = (torch.rand(3, 1, 1, generator=gen) * 2 - 1).expand(3, R, R)
+        else:
+            a, b = torch.rand(2, 3, 1, 1, generator=gen) * 2 - 1
+            phi = float(torch.rand(1, generator=gen)) * 2 * math.pi
+            t = torch.linspace(-1, 1, R)
+            ramp = (math.cos(phi) * t[None, :] + math.sin(phi) * t[:, None]) / 2 + 0.5
+            out[i] = a + (b - a) * ramp
+    return out

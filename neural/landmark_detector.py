@@ -11,8 +11,9 @@ A face in a photo, step by step (pixels x right, y down, 0-based pixel centres):
    extent, lifted) by its measured :data:`BOX_FRAMING`; with ``face_detector="auto"``,
    mediapipe's short-range then full-range detector when installed, else dlib's HOG
    (:meth:`NetworkDetector.face_detectors_for`), and when they find no face the network's
-   own face score over a multi-scale grid of windows (:func:`windows`), so that faces the
-   face detectors miss at large poses are still found;
+   own face score over a multi-scale grid of windows (:func:`windows`), the best window's
+   face read again in the framing of its own points (:meth:`NetworkDetector.search`), so
+   that faces the face detectors miss at large poses are still found;
 2. a first pass on the crop of that framing, then (``passes=2``; :data:`PASSES` says why
    not by default) a second on the crop re-centred from the first pass's 68 points through
    ``face_box``; with ``mirror=True`` (:data:`MIRROR` says whether by default) each pass also
@@ -38,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from morphable.detection import FACE_DETECTORS as ALL_FACE_DETECTORS
-from morphable.detection.result import Detection
+from morphable.detection.result import FACE_PROBABILITY, Detection
 from morphable.errors import FitError, InputError
 
 from .landmark_set import IBUG_ROWS, N_FACEMESH, box_from_points, box_side, face_box
@@ -68,8 +69,9 @@ BOX_FRAMING = {
 MIN_BOX_PX = 16.0
 """Smallest face box (its larger side, px) the network reads: below it a 128-px crop is a
 blur of a few pixels."""
-FACE_THRESHOLD = 0.5
-"""The face probability (sigmoid of the network's score) from which a crop holds a face."""
+FACE_THRESHOLD = FACE_PROBABILITY
+"""The face probability (sigmoid of the network's score) from which a crop holds a face
+(:data:`morphable.detection.result.FACE_PROBABILITY`)."""
 WINDOW_SIDES = (1.0, 0.75, 0.56, 0.42, 0.32, 0.24)
 """Sides of the candidate windows, in units of the photo's shorter side (steps of 3/4,
 about twice the training's box-scale jitter)."""
@@ -324,13 +326,24 @@ class NetworkDetector:
 
     def search(self, image: np.ndarray) -> dict:
         """The network's own face search: every :func:`windows` window scored at once, the best
-        one refined -> :meth:`refine`'s dict for it (one row), ``window`` (4,) px."""
+        one read again in the framing of its own 68 points -> :meth:`refine`'s dict for that
+        framing (one row; its probability is the re-framed crop's), ``window`` (4,) px.
+
+        The best of hundreds of windows is the far tail of the score on non-faces: on noise
+        photos a window scores as a face now and then (6 % of 64 held-out noise photos with
+        the committed weights, docs/landmark_net.md), while a face framed by the points
+        read from it stays a face and noise does not (none of the 64)."""
         H, W = image.shape[:2]
         cand = windows(W, H)
         best = int(np.argmax(self.run(image, cand)["probability"])) if len(cand) else None
         if best is None:
             return {"probability": np.zeros(0)}
-        return {**self.refine(image, cand[best:best + 1]), "window": cand[best]}
+        first = self.run(image, cand[best:best + 1])
+        again = face_box(first["points"][:, IBUG_ROWS])
+        if np.max(again[0, 2:] - again[0, :2]) < MIN_BOX_PX:     # points collapsed: no face
+            return {**first, "probability": np.zeros(1), "framing": cand[best:best + 1],
+                    "window": cand[best]}
+        return {**self.refine(image, again), "window": cand[best]}
 
     def detect_faces(self, image: np.ndarray, face_detector: str = "auto") -> np.ndarray:
         """(F, 4) px face boxes as :meth:`detect` takes them (``box=``: the 68 points' extent

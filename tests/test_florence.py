@@ -597,6 +597,7 @@ def test_detected_landmarks_on_rendered_frames(james, sfm, detector, package):
     # neither detector predicts a σ: the fit estimates the noise
     assert video.images is None and video.landmark_std_px is None
     assert desc["landmarks"].startswith(detector) and video.image_size == (256, 256)
+    assert [d.split()[0] for d in desc["frame_detectors"]] == [detector] * 2
     # the detector's own points reach the methods: the face mesh's 478, dlib's 68
     assert lm.shape == (2, 478 if detector == "facemesh" else 68, 2)
     truth = synthetic_video(james, "outdoor", sfm.landmark_positions(), 6, 2, seed=0).sampled_landmarks()
@@ -717,6 +718,7 @@ def test_protocol_on_a_real_video(james, james_paths, sfm, tmp_path):
     assert read.images.shape == (2, 256, 256, 3) and read.detected.all()
     assert desc["frames"] == [0, 5] and desc["times_s"] == [0.0, round(5 / 30, 4)]
     assert desc["landmarks"] == "dlib hog on video frames" and desc["frames_without_face"] == []
+    assert desc["frame_detectors"] == ["dlib hog"] * 2
     rendered = video_landmarks(james, sfm, "outdoor", 2, 6, 0, detect=detect)[0].landmarks
     # the same frames, 8-bit and H.264 on one side: the detector moves by about a pixel
     assert np.median(np.linalg.norm(lm - rendered, axis=-1)) < 2.0

@@ -38,13 +38,16 @@ def tiny_net(path, score=5.0, mean_points=None):
 @pytest.fixture(scope="module")
 def nets(tmp_path_factory):
     d = tmp_path_factory.mktemp("nets")
-    return {"face": tiny_net(d / "face.pt"), "blind": tiny_net(d / "blind.pt", score=-5.0)}
+    phi = np.linspace(0, 2 * np.pi, 546, endpoint=False)
+    ring = 0.4 * np.stack([np.cos(phi), np.sin(phi)], 1)       # points spread over the crop
+    return {"face": tiny_net(d / "face.pt"), "blind": tiny_net(d / "blind.pt", score=-5.0),
+            "spread": tiny_net(d / "spread.pt", mean_points=ring)}
 
 
 @pytest.fixture
 def plugin(monkeypatch, nets):
     """The network registered as an installed plugin (the worktree's editable install may
-    predate the entry point), its weights the tiny face network; caches cleared."""
+    predate the entry point), its weights the tiny face network with spread points; caches cleared."""
     import morphable.detection as det
     from morphable.detection import plugins
 
@@ -56,7 +59,7 @@ def plugin(monkeypatch, nets):
         return real(**kw)
 
     monkeypatch.setattr(plugins.metadata, "entry_points", entry_points)
-    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(nets["face"]))
+    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(nets["spread"]))
     for f in (plugins.detector, det._network_ready):
         f.cache_clear()
     yield
@@ -125,6 +128,35 @@ def test_auto_prefers_facemesh_then_the_network_then_dlib(plugin, monkeypatch, t
     with pytest.raises(InputError, match="'windows' does not go with the dlib"):
         det.resolve_detectors("dlib", "windows")
     assert det.landmark_count("network") == 478 and det.landmark_count("dlib") == 68
+
+
+def test_auto_gives_a_face_the_face_mesh_misses_to_the_network(plugin, nets, monkeypatch, tmp_path):
+    import morphable.detection as det
+    from morphable.detection import facemesh
+
+    def no_face(image, box=None, face_detector="auto"):
+        raise FitError("image: no face found")
+
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    monkeypatch.setattr(facemesh, "detect_landmarks", no_face)
+    found = det.detect(noise(), box=(100, 60, 220, 180))
+    assert found.detector.startswith("network") and found.sigma_px.shape == (478,)
+    np.testing.assert_array_equal(det.detect_landmarks(noise(), box=(100, 60, 220, 180)), found.points)
+    np.testing.assert_array_equal(det.detect_ibug68(noise(), box=(100, 60, 220, 180)), found.ibug68)
+    # the face mesh named, a box the network does not score as a face (a video's carried box
+    # on a frame without it), or the network unable to run: the face mesh's failure stands
+    with pytest.raises(FitError, match="no face found"):
+        det.detect(noise(), landmark_detector="facemesh")
+    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(nets["blind"]))
+    from morphable.detection import plugins
+
+    plugins.detector.cache_clear()
+    with pytest.raises(FitError, match="^image: no face found$"):
+        det.detect(noise(), box=(100, 60, 220, 180))
+    monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(tmp_path / "missing.pt"))
+    det._network_ready.cache_clear()
+    with pytest.raises(FitError, match="no face found"):
+        det.detect(noise())
 
 
 def test_network_not_installed_is_one_line(monkeypatch):
@@ -264,7 +296,13 @@ def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypa
     monkeypatch.setattr(ld.NetworkDetector, "detector_boxes", staticmethod(lambda image, kind: np.zeros((0, 4))))
     monkeypatch.setattr(ld.NetworkDetector, "face_detectors_for",
                         staticmethod(lambda f: ("short-range", "full-range") if f == "auto" else (f,)))
-    assert det.detect(img).detector == "network windows"
+    # the best window's face is read again in the framing of its points: points collapsed to
+    # one spot are no face, points spread over the crop are one
+    with pytest.raises(FitError, match="window search's best face score 0.00"):
+        det.detect(img)
+    spread = ld.NetworkDetector(nets["spread"])
+    monkeypatch.setattr(spread, "passes", 1)
+    assert spread.detect(img).detector == "network windows"
     with pytest.raises(FitError, match="no face found by the landmark network \\(full-range found none"):
         det.detect(img, face_detector="full-range")
     # the next face detector is asked when the first finds none
@@ -403,3 +441,18 @@ def test_bias_table_takes_away_a_shared_offset_but_not_noise():
     assert before > 5.5 and after < 1.5
     before, after = cells(bias_table(noise_only, gt, norm, np.zeros(40)))
     assert abs(before - 1.25) < 0.15 and after >= before
+
+
+def test_committed_weights_find_a_face_and_none_in_noise(data_dir):
+    # the face score refitted with textures and parts of faces as negatives
+    # (neural.landmark_score): before, the window search called uniform noise a face
+    from morphable.detection.images import read_image
+    from neural.landmark_detector import WEIGHTS_FILE, NetworkDetector
+
+    det = NetworkDetector(WEIGHTS_FILE)
+    assert "score_refit" in det.net.meta
+    found = det.detect(read_image(data_dir / "images" / "image_0010.png"), face_detector="windows")
+    assert found.score > 0.9
+    for seed in range(3):
+        with pytest.raises(FitError, match="no face found by the landmark network"):
+            det.detect(noise(seed=seed), face_detector="windows")

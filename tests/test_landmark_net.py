@@ -221,3 +221,50 @@ def test_script_gpu_recipe_on_cpu_and_bad_packs(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "nowhere" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_negative_crops_hold_no_whole_face():
+    from neural.landmark_data import NEGATIVE_KINDS, negative_crops
+
+    cfg = LandmarkConfig(**TINY)
+    src = _source(8)
+    for kind in NEGATIVE_KINDS:
+        x = negative_crops(None if kind == "texture" else src, cfg, 5, kind, seed=2)
+        assert x.shape == (5, 3, 32, 32) and float(x.min()) >= -1 and float(x.max()) <= 1
+        assert torch.equal(x, negative_crops(None if kind == "texture" else src, cfg, 5, kind, seed=2))
+    # a part of the face is a crop inside its box, smaller than half of it: the dot (at
+    # 35-45, 40-50 in a box of 20-76) fills much more of such a crop than of the face's crop
+    part = negative_crops(src, cfg, 32, "part").mean(1)
+    face = validation_batch(src, cfg, n=8)["image"].mean(1)
+    assert float((part > 0.5).float().mean()) > 2 * float((face > 0.5).float().mean())
+    with pytest.raises(InputError, match="kind must be one of"):
+        negative_crops(src, cfg, 2, "sky")
+
+
+def test_score_refit_changes_the_score_row_alone(tmp_path, monkeypatch):
+    from neural import train_landmarks
+    from neural.landmark_score import fit_logistic, main
+
+    # logistic regression on separable features: the classes end on their sides
+    h = torch.cat([torch.randn(40, 3) + 3, torch.randn(40, 3) - 3]).double()
+    y = torch.cat([torch.ones(40), torch.zeros(40)])
+    w, b = fit_logistic(h, y, torch.zeros(3), 0.0)
+    assert bool(((h @ w + b > 0) == (y > 0.5)).all())
+    # the script on a tiny net and faces: every weight but the score's row kept bit for bit
+    save_landmark_net(LandmarkNet(LandmarkConfig(**TINY, mix=(("synthetic", 1.0),))), tmp_path / "in.pt")
+    monkeypatch.setattr(train_landmarks, "load_sources",
+                        lambda *a, **k: ({"synthetic": _source(12)}, {"synthetic": _source(6, seed=1)}, {}))
+    assert main(["--weights", str(tmp_path / "in.pt"), "--synthetic", "mem", "--n", "24",
+                 "--mining-photos", "2", "--threads", "1", "--out", str(tmp_path / "out.pt"),
+                 "--report", str(tmp_path / "r.json")]) == 0
+    a, b = (torch.load(tmp_path / f, weights_only=False) for f in ("in.pt", "out.pt"))
+    changed = [k for k in a["state"] if not torch.equal(a["state"][k], b["state"][k])]
+    assert changed and set(changed) <= {"head.3.weight", "head.3.bias"}
+    rows = torch.nonzero((a["state"]["head.3.weight"] != b["state"]["head.3.weight"]).any(1)).ravel()
+    assert rows.tolist() == [3 * N_POINTS]
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert set(report["after"]) == {"recall synthetic", "false_positive away", "false_positive part",
+                                    "false_positive texture", "noise photos with a face",
+                                    "noise photos with a face, the detector"}
+    assert report["mined_windows"] == 2 * 2 * 2 * 16      # 2 rounds, 2 photos, mirrored, top 16
+    assert b["meta"]["score_refit"]["faces"] == 24

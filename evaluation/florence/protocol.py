@@ -173,14 +173,15 @@ def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("au
     from ..videos import detect_face, detected_points
 
     frames = sample_frames(path, k)
-    lm, sigma = detected_points([detect_face(f.image, *detector) for f in frames],
-                                landmark_count(*detector))
+    detections = [detect_face(f.image, *detector) for f in frames]
+    lm, sigma = detected_points(detections, landmark_count(*detector))
     found = np.isfinite(lm).all(-1).any(-1)
     if not found.any():
         raise InputError(f"{path}: no face found in any of the {len(frames)} sampled frames")
     desc = {"source": str(path), "frames": [f.index for f in frames],
             "times_s": [round(f.time_s, 4) for f in frames], "image_size": list(frames[0].size),
             "landmarks": f"{describe(*detector)} on video frames",
+            "frame_detectors": [d and d.detector for d in detections],
             "frames_without_face": [f.index for f, ok in zip(frames, found) if not ok],
             "detected": [True] * len(frames), "n_landmarks": np.isfinite(lm[..., 0]).sum(1).tolist()}
     images = np.stack([f.image for f in frames]) / 255.0 if with_frames else None
@@ -222,9 +223,10 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
 
         from ..videos import detect_face, detected_points, frontal_frame, project_landmarks
 
-        lm, sigma = detected_points([detect_face(im, *detect) for im in images],
-                                    landmark_count(*detect))
+        found = [detect_face(im, *detect) for im in images]
+        lm, sigma = detected_points(found, landmark_count(*detect))
         desc["landmarks"] = f"{describe(*detect)} on rendered frames"
+        desc["frame_detectors"] = [d and d.detector for d in found]
         # how far the detector is from the scan's own landmarks, projected without noise
         truth = project_landmarks(scan, video.sampled_cameras(),
                                   frontal_frame(scan.landmarks, model.landmark_positions()))

@@ -32,7 +32,8 @@ def add_detector_arguments(parser) -> None:
                         help="landmarks for images without landmark files: network (the neural "
                              "plugin's landmark network, 478 + 68 points with a sigma each), "
                              "facemesh (mediapipe, 478 points), dlib (68); auto: facemesh when "
-                             "installed, else the network when its weights are present, else dlib "
+                             "installed, and the network for a face it does not find when the "
+                             "network's weights are present; else the network; else dlib "
                              "(default)")
     faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
     parser.add_argument("--face-detector", choices=tuple(faces), default="auto",

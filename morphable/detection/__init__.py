@@ -11,10 +11,11 @@
   ``"cnn"`` (whichever is installed), ``"windows"`` (the network's own face score over a grid
   of candidate windows), ``"auto"`` (mediapipe's short-range then full-range detector, else
   dlib's HOG, then the windows when they find no face);
-- ``"auto"``: the face mesh when mediapipe can be imported, else the network when its plugin
-  is installed and can run (torch and its weights), else dlib (the committed network is less
-  accurate than the face mesh on near-frontal photos but finds every face: docs/landmark_net.md
-  has the figures that keep it second); ``face_detector="auto"``: the
+- ``"auto"``: the face mesh when mediapipe can be imported, and for a face it does not find
+  the network when its plugin is installed and can run (torch and its weights); else the
+  network; else dlib (the committed network is less accurate than the face mesh on
+  near-frontal photos but finds nearly every face: docs/landmark_net.md has the figures that keep it
+  second); ``face_detector="auto"``: the
   landmark detector's default (the face mesh's whole-photo search with the full-range
   fallback, dlib's HOG).
 
@@ -38,11 +39,11 @@ import importlib.util
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import FitError, InputError
 from . import plugins
 from .boxes import check_box
 from .images import as_image, image_size, read_image
-from .result import Detection, landmark_noise
+from .result import FACE_PROBABILITY, Detection, landmark_noise
 
 __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
            "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
@@ -121,20 +122,45 @@ def detect(image, *, landmark_detector: str = "auto", face_detector: str = "auto
     -------
     :class:`~.result.Detection`: the face mesh's 478 points (3D convention, no σ), dlib's 68
     (2D convention, no σ), the network's 478 face-mesh rows with their σ and its own 68 iBUG
-    rows (3D convention, score, box).
+    rows (3D convention, score, box). With "auto", a face the face mesh does not find is
+    looked for by the network where it can run (:attr:`Detection.detector` says which found
+    it; in a given box, only where the network scores it a face, :data:`FACE_PROBABILITY`):
+    the face mesh misses faces turned far away, which the network finds.
 
     Raises
     ------
     FitError when no face is found; InputError for a bad image, box or detector name.
     """
     landmarks, faces = resolve_detectors(landmark_detector, face_detector)
-    if landmarks in BUILTIN:
-        pts = detect_landmarks(image, landmark_detector=landmarks, face_detector=faces, box=box)
-        if landmarks == "dlib":
-            return Detection(pts, None, pts, None, "ibug68", "2d", describe(landmarks, faces))
-        from .facemesh import to_ibug68
+    try:
+        return _detect(image, landmarks, faces, box)
+    except FitError as e:
+        if not (landmark_detector == "auto" and landmarks == "facemesh" and _network_ready()):
+            raise
+        missed = e
+    # the face mesh's face detectors are the network's too; in a given box the network reads
+    # points whatever the box holds, so its face score decides (a video's carried box on a
+    # frame without the face)
+    found = _detect(image, "network", faces, box)
+    if found.score is not None and found.score < FACE_PROBABILITY:
+        raise missed
+    return found
 
-        return Detection(pts, None, to_ibug68(pts), None, "facemesh478", "3d", describe(landmarks, faces))
+
+def _detect(image, landmarks: str, faces: str, box) -> Detection:
+    """:func:`detect` with the detectors resolved, without the "auto" fallback."""
+    if landmarks in BUILTIN:
+        if landmarks == "facemesh":
+            from .facemesh import detect_landmarks as mesh
+            from .facemesh import to_ibug68
+
+            pts = mesh(image, box=box, face_detector=faces)
+            return Detection(pts, None, to_ibug68(pts), None, "facemesh478", "3d",
+                             describe(landmarks, faces))
+        from .dlib_detector import detect_landmarks as mesh
+
+        pts = mesh(image, box=box, face_detector=faces)
+        return Detection(pts, None, pts, None, "ibug68", "2d", describe(landmarks, faces))
     img, _ = as_image(image)
     return plugins.detector(landmarks).detect(img, box=None if box is None else check_box(box),
                                               face_detector=faces, name=_name(image))
@@ -146,7 +172,8 @@ def _name(image) -> str:
 
 def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: str = "auto",
                      box=None) -> np.ndarray:
-    """Landmarks of the largest face in a photo (or of the face in ``box``).
+    """Landmarks of the largest face in a photo (or of the face in ``box``): :func:`detect`'s
+    points.
 
     Parameters
     ----------
@@ -164,30 +191,16 @@ def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: s
     ------
     FitError when no face is found; InputError for a bad image, box or detector name.
     """
-    landmarks, faces = resolve_detectors(landmark_detector, face_detector)
-    if landmarks not in BUILTIN:
-        return detect(image, landmark_detector=landmarks, face_detector=faces, box=box).points
-    if landmarks == "facemesh":
-        from .facemesh import detect_landmarks as mesh
-    else:
-        from .dlib_detector import detect_landmarks as mesh
-    return mesh(image, box=box, face_detector=faces)
+    return detect(image, landmark_detector=landmark_detector, face_detector=face_detector,
+                  box=box).points
 
 
 def detect_ibug68(image, *, landmark_detector: str = "auto", face_detector: str = "auto",
                   box=None) -> np.ndarray:
-    """:func:`detect_landmarks` as 68 iBUG points -> (68, 2) px: dlib's own, the network's own
-    68 rows, the face mesh's 478 through :data:`.facemesh.FACEMESH_TO_IBUG68` (a stopgap until
-    the fitter takes the 478 points)."""
-    landmarks, faces = resolve_detectors(landmark_detector, face_detector)
-    if landmarks not in BUILTIN:
-        return detect(image, landmark_detector=landmarks, face_detector=faces, box=box).ibug68
-    pts = detect_landmarks(image, landmark_detector=landmarks, face_detector=faces, box=box)
-    if len(pts) == 68:
-        return pts
-    from .facemesh import to_ibug68
-
-    return to_ibug68(pts)
+    """:func:`detect`'s 68 iBUG points -> (68, 2) px: dlib's own, the network's own 68 rows,
+    the face mesh's 478 through :data:`.facemesh.FACEMESH_TO_IBUG68`."""
+    return detect(image, landmark_detector=landmark_detector, face_detector=face_detector,
+                  box=box).ibug68
 
 
 def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:

@@ -7,10 +7,12 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Detection", "SCHEMES", "CONVENTIONS", "landmark_noise"]
+__all__ = ["Detection", "SCHEMES", "CONVENTIONS", "FACE_PROBABILITY", "landmark_noise"]
 
 SCHEMES = {"facemesh478": 478, "ibug68": 68}
 """The point sets a detection's ``points`` come in, and their row counts."""
+FACE_PROBABILITY = 0.5
+"""The face probability (:attr:`Detection.score`) from which a detector's crop holds a face."""
 CONVENTIONS = ("2d", "3d")
 """Where a detector puts outline and hidden points: "2d" on the face's visible outline (300-W,
 dlib), "3d" each on its own surface point, a hidden one where it projects (the face mesh, the

@@ -204,7 +204,7 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
         raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
     if int(video_frames) < 1:
         raise InputError(f"video frames must be >= 1, got {video_frames}")
-    source = describe(landmark_detector, face_detector)  # a bad choice fails before any work
+    describe(landmark_detector, face_detector)  # a bad choice fails before any work
     items, files = [], []
     for item, lm in zip(images, landmarks):
         expanded = expand_videos([item], video_frames)
@@ -242,7 +242,8 @@ def fit_files(images, landmarks=None, *, model="sfm", camera: str = "affine", fo
                         robust=robust, shared_identity=shared_identity,
                         **detection_settings(found, np.shape(lms)[1], landmark_std_px))
     report = res.to_dict(images=[item.label if _is_frame(item) else str(item) for item, _, _ in kept])
-    report["landmarks"] = [str(lm) if lm else source for _, lm, _ in kept]
+    # "auto" may have found a photo's face with the network where the face mesh found none
+    report["landmarks"] = [str(lm) if lm else d.detector for (_, lm, _), d in zip(kept, found)]
     if any(_is_frame(item) for item in items):
         report["video_frames"] = [{"image": item.label, "video": item.source, "frame": item.index,
                                    "time_s": round(item.time_s, 4)}
