@@ -141,7 +141,10 @@ def detect(image, *, landmark_detector: str = "auto", face_detector: str = "auto
     # the face mesh's face detectors are the network's too; in a given box the network reads
     # points whatever the box holds, so its face score decides (a video's carried box on a
     # frame without the face)
-    found = _detect(image, "network", faces, box)
+    try:
+        found = _detect(image, "network", faces, box)
+    except FitError as e:
+        raise FitError(f"{e}; nor by the face mesh") from None
     if found.score is not None and found.score < FACE_PROBABILITY:
         raise missed
     return found

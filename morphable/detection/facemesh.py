@@ -119,11 +119,21 @@ def _solutions():
     return face_detection, face_mesh
 
 
+def _opened(graph):
+    """``graph`` after one blank image, with stderr closed: a new graph opens its calculators
+    on its own threads after the constructor returns, and they log (the TFLite delegate, the
+    feedback manager) whenever they get there; the first image waits for them."""
+    with _lock, _quiet():
+        graph.process(np.zeros((32, 32, 3), np.uint8))
+    return graph
+
+
 @functools.lru_cache(maxsize=None)
 def _mesh():
     with _quiet():
-        return _solutions()[1].FaceMesh(static_image_mode=True, refine_landmarks=True,
+        mesh = _solutions()[1].FaceMesh(static_image_mode=True, refine_landmarks=True,
                                         max_num_faces=MAX_FACES)
+    return _opened(mesh)
 
 
 @functools.lru_cache(maxsize=None)
@@ -131,7 +141,8 @@ def _detector(kind: str):
     if kind not in FACE_DETECTORS:
         raise InputError(f"face detector: the face mesh has {' or '.join(FACE_DETECTORS)}, got {kind!r}")
     with _quiet():
-        return _solutions()[0].FaceDetection(model_selection=FACE_DETECTORS.index(kind))
+        graph = _solutions()[0].FaceDetection(model_selection=FACE_DETECTORS.index(kind))
+    return _opened(graph)
 
 
 def _process(graph, img: np.ndarray):
