@@ -204,7 +204,6 @@ def validation_batch(source: LandmarkSource, config, n: int = 256, seed: int = 0
             "index": index}
 
 
-
 def negative_crops(source: LandmarkSource, config, n: int, kind: str, seed: int = 0) -> torch.Tensor:
     """``n`` crops that hold no whole face -> (n, 3, R, R) in [-1, 1], colour-jittered as
     training crops are.

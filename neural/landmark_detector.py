@@ -335,10 +335,11 @@ class NetworkDetector:
         read from it stays a face and noise does not (none of the 64)."""
         H, W = image.shape[:2]
         cand = windows(W, H)
-        best = int(np.argmax(self.run(image, cand)["probability"])) if len(cand) else None
-        if best is None:
+        if not len(cand):
             return {"probability": np.zeros(0)}
-        first = self.run(image, cand[best:best + 1])
+        every = self.run(image, cand)
+        best = int(np.argmax(every["probability"]))
+        first = {k: v[best:best + 1] for k, v in every.items()}
         again = face_box(first["points"][:, IBUG_ROWS])
         if np.max(again[0, 2:] - again[0, :2]) < MIN_BOX_PX:     # points collapsed: no face
             return {**first, "probability": np.zeros(1), "framing": cand[best:best + 1],

@@ -149,12 +149,11 @@ class Method:
 def _video_fit_options(settings: dict, frames: Frames) -> dict:
     """Landmark-fit settings for a video's frames: a pinhole camera with the video's focal
     length when it is known (unless ``settings["camera"]`` says otherwise), the landmark
-    noise the detector's σ where it gives one, else estimated (a video's is unknown:
-    detector, resolution, blur), unless set, and for
-    frames whose landmarks were detected ((N,) bool ``detected``, ``n_landmarks`` points
-    each) the detector's settings (:func:`morphable.fitting.options.detected_settings`: its
-    model error, its frames one look at the face in a shared fit, the face mesh's
-    convention) unless set."""
+    noise the detector's σ where it gives one (``Frames.landmark_std_px``), else estimated (a
+    video's is unknown: detector, resolution, blur), unless set, and for frames whose
+    landmarks were detected (``Frames.detected``) the detector's settings
+    (:func:`morphable.fitting.options.detected_settings`: its model error, its frames one
+    look at the face in a shared fit, the face mesh's convention) unless set."""
     from morphable.fitting.options import detected_settings
 
     out = dict(settings)
