@@ -119,12 +119,41 @@ def _solutions():
     return face_detection, face_mesh
 
 
-def _opened(graph):
-    """``graph`` after one blank image, with stderr closed: a new graph opens its calculators
-    on its own threads after the constructor returns, and they log (the TFLite delegate, the
-    feedback manager) whenever they get there; the first image waits for them."""
-    with _lock, _quiet():
-        graph.process(np.zeros((32, 32, 3), np.uint8))
+OPEN_WAIT_S = 2.0
+"""The longest a new graph is waited for to finish opening (see :func:`_opened`)."""
+
+
+def _opened(graph, models: int):
+    """``graph`` once its calculators have opened, with stderr closed meanwhile.
+
+    A new graph opens its calculators on its own threads after the constructor returns, each
+    of its ``models`` TFLite models logging one "inference_feedback_manager" line to file
+    descriptor 2 when it loads; a blank image does not wait for them all (the face mesh's
+    landmark model only runs on a face). So stderr goes to a pipe until those lines have come
+    (or :data:`OPEN_WAIT_S` has passed): a line after that would break a command's one-line
+    answer."""
+    import time
+
+    with _lock, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sys.stderr.flush()
+        read, write = os.pipe()
+        saved = os.dup(2)
+        os.dup2(write, 2)
+        os.close(write)
+        try:
+            graph.process(np.zeros((32, 32, 3), np.uint8))
+            os.set_blocking(read, False)
+            seen, end = b"", time.monotonic() + OPEN_WAIT_S
+            while seen.count(b"inference_feedback_manager") < models and time.monotonic() < end:
+                try:
+                    seen += os.read(read, 1 << 16)
+                except BlockingIOError:
+                    time.sleep(0.01)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            os.close(read)
     return graph
 
 
@@ -133,7 +162,7 @@ def _mesh():
     with _quiet():
         mesh = _solutions()[1].FaceMesh(static_image_mode=True, refine_landmarks=True,
                                         max_num_faces=MAX_FACES)
-    return _opened(mesh)
+    return _opened(mesh, models=2)    # face detection, face landmarks
 
 
 @functools.lru_cache(maxsize=None)
@@ -142,7 +171,7 @@ def _detector(kind: str):
         raise InputError(f"face detector: the face mesh has {' or '.join(FACE_DETECTORS)}, got {kind!r}")
     with _quiet():
         graph = _solutions()[0].FaceDetection(model_selection=FACE_DETECTORS.index(kind))
-    return _opened(graph)
+    return _opened(graph, models=1)
 
 
 def _process(graph, img: np.ndarray):
