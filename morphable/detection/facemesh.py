@@ -80,15 +80,13 @@ _lock = threading.Lock()  # mediapipe's graphs take one image at a time
 
 
 @contextlib.contextmanager
-def _quiet():
-    """mediapipe's C++ code logs set-up lines (TFLite delegate, feedback manager) straight to
-    file descriptor 2, and protobuf warns when results are read: a CLI must answer in one
-    line, so stderr is closed while mediapipe works."""
+def _stderr_to(fd: int):
+    """File descriptor 2 pointed at ``fd`` (taken over: closed here) and Python's warnings
+    off, both given back on leaving."""
     sys.stderr.flush()
     saved = os.dup(2)
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, 2)
-    os.close(null)
+    os.dup2(fd, 2)
+    os.close(fd)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -96,6 +94,13 @@ def _quiet():
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+def _quiet():
+    """mediapipe's C++ code logs set-up lines (TFLite delegate, feedback manager) straight to
+    file descriptor 2, and protobuf warns when results are read: a CLI must answer in one
+    line, so stderr is closed while mediapipe works."""
+    return _stderr_to(os.open(os.devnull, os.O_WRONLY))
 
 
 def _silence_stderr_at_exit():
@@ -123,25 +128,21 @@ OPEN_WAIT_S = 2.0
 """The longest a new graph is waited for to finish opening (see :func:`_opened`)."""
 
 
-def _opened(graph, models: int):
-    """``graph`` once its calculators have opened, with stderr closed meanwhile.
+def _opened(make, models: int):
+    """The graph ``make()`` builds, once its calculators have opened, with stderr away meanwhile.
 
     A new graph opens its calculators on its own threads after the constructor returns, each
     of its ``models`` TFLite models logging one "inference_feedback_manager" line to file
     descriptor 2 when it loads; a blank image does not wait for them all (the face mesh's
-    landmark model only runs on a face). So stderr goes to a pipe until those lines have come
-    (or :data:`OPEN_WAIT_S` has passed): a line after that would break a command's one-line
-    answer."""
+    landmark model only runs on a face). So stderr goes to a pipe from before the graph is
+    built until those lines have come (or :data:`OPEN_WAIT_S` has passed): a line after that
+    would break a command's one-line answer."""
     import time
 
-    with _lock, warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        sys.stderr.flush()
-        read, write = os.pipe()
-        saved = os.dup(2)
-        os.dup2(write, 2)
-        os.close(write)
-        try:
+    read, write = os.pipe()
+    try:
+        with _lock, _stderr_to(write):
+            graph = make()
             graph.process(np.zeros((32, 32, 3), np.uint8))
             os.set_blocking(read, False)
             seen, end = b"", time.monotonic() + OPEN_WAIT_S
@@ -150,28 +151,24 @@ def _opened(graph, models: int):
                     seen += os.read(read, 1 << 16)
                 except BlockingIOError:
                     time.sleep(0.01)
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            os.close(read)
+    finally:
+        os.close(read)
     return graph
 
 
 @functools.lru_cache(maxsize=None)
 def _mesh():
-    with _quiet():
-        mesh = _solutions()[1].FaceMesh(static_image_mode=True, refine_landmarks=True,
-                                        max_num_faces=MAX_FACES)
-    return _opened(mesh, models=2)    # face detection, face landmarks
+    # face detection, face landmarks
+    return _opened(lambda: _solutions()[1].FaceMesh(static_image_mode=True, refine_landmarks=True,
+                                                    max_num_faces=MAX_FACES), models=2)
 
 
 @functools.lru_cache(maxsize=None)
 def _detector(kind: str):
     if kind not in FACE_DETECTORS:
         raise InputError(f"face detector: the face mesh has {' or '.join(FACE_DETECTORS)}, got {kind!r}")
-    with _quiet():
-        graph = _solutions()[0].FaceDetection(model_selection=FACE_DETECTORS.index(kind))
-    return _opened(graph, models=1)
+    return _opened(lambda: _solutions()[0].FaceDetection(model_selection=FACE_DETECTORS.index(kind)),
+                   models=1)
 
 
 def _process(graph, img: np.ndarray):
