@@ -135,6 +135,7 @@ def identity_signal(pred, faces) -> dict:
     seen = (pred - faces["mean68"])[found] / norm[found, None, None]
     use = (np.broadcast_to(faces["defined68"][found, :, None], truth.shape) & np.isfinite(truth)
            & np.isfinite(seen))
+
     def centred(x):
         return x - np.where(use, x, 0.0).sum(0) / np.maximum(use.sum(0), 1)
 

@@ -88,24 +88,32 @@ def noise_photos(n: int, seed: int = 0) -> list:
     return out
 
 
-def _window_features(net, photos, row, top: int = 16) -> tuple:
-    """The hidden features of the ``top`` best-scoring windows of each photo (the network's
-    window search, :func:`neural.landmark_detector.windows`, unmirrored and mirrored) under
-    the score row ``row`` = (w, b) -> ((M, hidden) features, (len(photos),) the best window's
-    face probability of each photo)."""
+def _window_features(net, photos) -> list:
+    """The hidden features of every window of the network's window search
+    (:func:`neural.landmark_detector.windows`) of each photo -> [((K, hidden) plain, (K,
+    hidden) mirrored), ...]: what any score row ranks the windows by."""
     from .landmark_detector import crops, windows
 
-    w, b = row
-    feats, best = [], []
+    out = []
     for img in photos:
         x = crops(img, windows(img.shape[1], img.shape[0]), net.config.resolution)
         h = hidden_features(net, torch.cat([x, torch.flip(x, dims=[-1])]))
-        half = len(x)
-        logit = ((h[:half] + h[half:]) @ w) / 2 + b          # the detector merges the two readings
+        out.append((h[:len(x)], h[len(x):]))
+    return out
+
+
+def _best_windows(features: list, row, top: int = 16) -> tuple:
+    """The ``top`` best-scoring windows of each photo's :func:`_window_features` under the
+    score row ``row`` = (w, b) -> ((M, hidden) their features, unmirrored and mirrored,
+    (photos,) the best window's face probability of each photo)."""
+    w, b = row
+    feats, best = [], []
+    for plain, mirrored in features:
+        logit = ((plain + mirrored) @ w) / 2 + b          # the detector merges the two readings
         order = torch.argsort(logit, descending=True)[:top]
-        feats += [h[order], h[half + order]]
+        feats += [plain[order], mirrored[order]]
         best.append(float(torch.sigmoid(logit[order[0]])))
-    return torch.cat(feats), np.array(best)
+    return (torch.cat(feats) if feats else torch.zeros(0)), np.array(best)
 
 
 def detector_rate(weights, photos) -> float:
@@ -131,11 +139,12 @@ def _rates(net, row, held: dict, negatives: dict) -> dict:
     return out
 
 
-def _photo_rate(net, photos, row) -> float:
-    """The share of ``photos`` where the window search's best window is a face under ``row``."""
+def _photo_rate(features: list, row) -> float:
+    """The share of photos (their :func:`_window_features`) whose best window is a face under
+    ``row``."""
     from .landmark_detector import FACE_THRESHOLD
 
-    return round(float((_window_features(net, photos, row, top=1)[1] >= FACE_THRESHOLD).mean()), 4)
+    return round(float((_best_windows(features, row, top=1)[1] >= FACE_THRESHOLD).mean()), 4)
 
 
 def refit_score(net, sources: dict, validation: dict, n: int = 4096, l2: float = 1e-3,
@@ -173,21 +182,22 @@ def refit_score(net, sources: dict, validation: dict, n: int = 4096, l2: float =
     # the window search takes the best of hundreds of windows: its false faces are the
     # negatives' extreme tail, so the best windows on noise photos are mined and added
     # (hard negatives), twice
-    train_photos, held_photos = noise_photos(mining_photos, seed), noise_photos(64, seed + 100)
+    train = _window_features(net, noise_photos(mining_photos, seed))
+    held_windows = _window_features(net, noise_photos(64, seed + 100))
     row, mined = before, []
     for r in range(1 + mining_rounds):
         h = torch.cat([pos, *neg.values(), *mined])
         y = torch.cat([torch.ones(len(pos)), torch.zeros(len(h) - len(pos))])
         row = fit_logistic(h, y, *row, l2=l2)
-        if train_photos and r < mining_rounds:
-            mined.append(_window_features(net, train_photos, row)[0])
+        if train and r < mining_rounds:
+            mined.append(_best_windows(train, row)[0])
     with torch.no_grad():
         last.weight[-1] = row[0].to(last.weight)
         last.bias[-1] = row[1]
     return {"before": {**_rates(net, before, held, held_neg),
-                       "noise photos with a face": _photo_rate(net, held_photos, before)},
+                       "noise photos with a face": _photo_rate(held_windows, before)},
             "after": {**_rates(net, row, held, held_neg),
-                      "noise photos with a face": _photo_rate(net, held_photos, row)},
+                      "noise photos with a face": _photo_rate(held_windows, row)},
             "mined_windows": int(sum(len(m) for m in mined)),
             "faces": len(pos), "negatives": {k: len(v) for k, v in neg.items()},
             "l2": l2, "seconds": round(time.perf_counter() - t, 1)}
