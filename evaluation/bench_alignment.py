@@ -11,9 +11,11 @@ Methods, each run on every photo of a set:
   refinement moves the 68 points towards or away from the ground truth;
 - ``network``: the landmark network's own 68 rows (``landmark_detector="network"``, its
   weights from ``$MORPHABLE_LANDMARK_WEIGHTS`` or the committed ones; by name only);
-- ``ours``: our fit with the default detector (``landmark_detector="auto"``: the face mesh,
-  and the network for a face the face mesh does not find), as ``morphable fit IMAGE`` runs;
-- ``ours-dlib``, ``ours-facemesh``, ``ours-network``: our fit (SFM, one frame) to the detector's points,
+- ``fused``: the network's and the face mesh's points fused by their uncertainty
+  (``landmark_detector="fused"``, :func:`morphable.detection.fusion.fuse`), its 68 rows;
+- ``ours``: our fit with the default detector (``landmark_detector="auto"``: "fused" where
+  both can run), as ``morphable fit IMAGE`` runs;
+- ``ours-dlib``, ``ours-facemesh``, ``ours-network``, ``ours-fused``: our fit (SFM, one frame) to the detector's points,
   made as ``morphable fit`` makes it (:func:`morphable.fitting.options.detection_settings`:
   the face mesh's and the network's 478 points in the 3D convention, the network's σ); its
   projected iBUG-68 landmarks (``FitResult.landmarks_68_px``) are what is scored, so that the
@@ -62,9 +64,10 @@ __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "re
            "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh", "ours")
-NETWORK_METHODS = ("network", "ours-network")
+NETWORK_METHODS = ("network", "ours-network", "fused", "ours-fused")
 """The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
-:mod:`neural.landmark_detector`; chosen by name, not run by default)."""
+:mod:`neural.landmark_detector`), the same fused with the face mesh's; chosen by name, not run
+by default."""
 
 
 def _fitted(method: str) -> bool:

@@ -39,9 +39,10 @@ from .bench_fitting import similarity_error
 __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
 
 METHODS = ("ours-facemesh", "ours-dlib", "eos-dlib", "eos-facemesh")
-NETWORK_METHODS = ("ours-network", "eos-network")
-"""With the landmark network's points (the neural plugin's detector; chosen by name, not run by
-default)."""
+NETWORK_METHODS = ("ours-network", "eos-network", "ours-fused")
+"""With the landmark network's points (the neural plugin's detector), alone or fused with the face
+mesh's (``landmark_detector="fused"``, the default where both can run); chosen by name, not run
+by default."""
 REFINED = refined_methods(METHODS)
 CALIBRATION_PEOPLE = 20
 """The first people of the set, whose colours the scheme calibration's renders wore."""

@@ -95,6 +95,60 @@ def test_cli_refuses_a_face_detector_of_the_other_landmark_detector(photo, capsy
     assert len(err) == 1 and "does not go with the dlib landmark detector" in err[0]
 
 
+# --- fusing two readings (morphable.detection.fusion) -----------------------------------------
+
+def _reading(points, sigma=None, name="network box"):
+    from morphable.detection import Detection
+
+    pts = np.asarray(points, dtype=float)
+    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (478,)).copy()
+    return Detection(pts, sig, pts[:68], None if sig is None else sig[:68], "facemesh478", "3d", name,
+                     score=None if sig is None else 0.9, box=np.array([0.0, 0, 100, 100]))
+
+
+def test_fuse_weighs_each_reading_by_its_sigma():
+    from morphable.detection.fusion import FLOOR, fuse, other_std_px
+
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(0, 100, (478, 2))
+    sigma = np.where(np.arange(478) < 239, 1.0, 6.0)       # half the points sure, half not
+    net = _reading(truth + sigma[:, None] * rng.standard_normal((478, 2)), sigma)
+    mesh = _reading(truth + 2.0 * rng.standard_normal((478, 2)), name="facemesh auto")
+    f = fuse(net, mesh)
+    assert f.detector == "network box + facemesh" and f.score == 0.9
+    np.testing.assert_array_equal(f.box, net.box)
+    s = other_std_px(net, mesh)
+    w = (1 / sigma ** 2) / (1 / sigma ** 2 + 1 / s ** 2)
+    np.testing.assert_allclose(f.points, w[:, None] * net.points + (1 - w[:, None]) * mesh.points)
+    np.testing.assert_allclose(f.sigma_px, 1 / np.sqrt(1 / sigma ** 2 + 1 / s ** 2))
+    np.testing.assert_allclose(f.ibug68, f.points[:68])
+    # the sure points follow the network, the unsure ones the face mesh; the fused reading is
+    # nearer the truth than either
+    assert (w[:239] > 0.5).all() and (w[239:] < 0.5).all()
+    err = {k: np.linalg.norm(d.points - truth, axis=1).mean() for k, d in
+           (("net", net), ("mesh", mesh), ("fused", f))}
+    assert err["fused"] < min(err["net"], err["mesh"]), err
+    # readings that agree exactly: the other detector's σ is the floor, not 0
+    assert other_std_px(net, _reading(net.points)) == pytest.approx(FLOOR * np.sqrt(np.mean(sigma ** 2)))
+    # a face mesh that misread the face (40 px off): its weight nearly vanishes
+    far = fuse(net, _reading(truth + 40.0))
+    assert np.abs(far.points - net.points)[:239].max() < 0.05
+
+
+def test_fuse_refuses_readings_it_cannot_weigh():
+    from morphable.detection.fusion import fuse
+
+    net, mesh = _reading(np.zeros((478, 2)), 2.0), _reading(np.ones((478, 2)))
+    for a, b in ((mesh, net), (net, net), (mesh, mesh)):
+        with pytest.raises(InputError, match="must give σ"):
+            fuse(a, b)
+    from morphable.detection import Detection
+
+    dlib = Detection(np.ones((68, 2)), None, np.ones((68, 2)), None, "ibug68", "2d", "dlib hog")
+    with pytest.raises(InputError, match=r"facemesh478 points \(3d convention\), dlib hog gives ibug68 points \(2d\)"):
+        fuse(net, dlib)
+
+
 # --- dlib -------------------------------------------------------------------------------------
 
 def test_dlib_landmarks_match_the_annotation(takeo):
@@ -159,7 +213,7 @@ def mesh_points(photo):
     return detect_landmarks(photo, landmark_detector="facemesh")
 
 
-def test_facemesh_finds_478_points_and_its_68_match_the_annotation(photo, mesh_points):
+def test_facemesh_finds_478_points_and_its_68_match_the_annotation(photo, mesh_points, monkeypatch):
     from morphable.detection import detect_ibug68
     from morphable.io.landmark_files import read_pts
 
@@ -168,7 +222,10 @@ def test_facemesh_finds_478_points_and_its_68_match_the_annotation(photo, mesh_p
     lm = detect_ibug68(photo, landmark_detector="facemesh")
     err = np.linalg.norm(lm - truth, axis=1) / _face_size(truth)
     assert lm.shape == (68, 2) and err.mean() < 0.04 and np.median(err[17:]) < 0.03
-    # auto is the face mesh when mediapipe is installed
+    # auto is the face mesh where mediapipe is installed and the landmark network cannot run
+    import morphable.detection as det
+
+    monkeypatch.setattr(det, "_network_ready", lambda: False)
     np.testing.assert_allclose(detect_ibug68(photo), lm)
 
 

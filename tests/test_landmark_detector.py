@@ -110,52 +110,111 @@ def test_import_and_discovery_pull_no_torch():
 
 # --- the "auto" choice -----------------------------------------------------------------------
 
-def test_auto_prefers_facemesh_then_the_network_then_dlib(plugin, monkeypatch, tmp_path):
+def test_auto_prefers_the_fused_detector_then_facemesh_then_the_network_then_dlib(plugin, monkeypatch,
+                                                                              tmp_path):
     import morphable.detection as det
 
     monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
-    assert det.resolve_detectors() == ("facemesh", "auto")
+    assert det.resolve_detectors() == ("fused", "auto")
+    assert det.resolve_detectors("auto", "windows") == ("fused", "windows")
+    with pytest.raises(InputError, match="'hog' does not go with the facemesh"):
+        det.resolve_detectors("facemesh", "hog")
     monkeypatch.setattr(det, "_facemesh_installed", lambda: False)
     assert det.resolve_detectors() == ("network", "auto")
     assert det.resolve_detectors("auto", "windows") == ("network", "windows")
+    with pytest.raises(InputError, match="'fused' needs mediapipe"):
+        det.resolve_detectors("fused")
     assert det.describe("network", "hog") == "network hog"
     # no weights: auto falls back (the network named explicitly still resolves; its weights
     # error comes with the first detection)
     monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(tmp_path / "missing.pt"))
     det._network_ready.cache_clear()
     assert det.resolve_detectors() == ("dlib", "hog")
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    assert det.resolve_detectors() == ("facemesh", "auto")
     assert det.resolve_detectors("network") == ("network", "auto")
     with pytest.raises(InputError, match="'windows' does not go with the dlib"):
         det.resolve_detectors("dlib", "windows")
     assert det.landmark_count("network") == 478 and det.landmark_count("dlib") == 68
+    assert det.landmark_count("fused") == 478
 
 
-def test_auto_gives_a_face_the_face_mesh_misses_to_the_network(plugin, nets, monkeypatch, tmp_path):
+def _mesh_reads(points):
+    """A stand-in for the face mesh's detect_landmarks: ``points`` (478, 2) wherever it looks,
+    the boxes it was given recorded in ``.boxes``."""
+    def read(image, box=None, face_detector="auto"):
+        read.boxes.append(None if box is None else np.asarray(box, dtype=float))
+        return points.copy()
+
+    read.boxes = []
+    return read
+
+
+def test_fused_reads_the_networks_box_with_the_face_mesh_and_fuses(plugin, monkeypatch):
     import morphable.detection as det
     from morphable.detection import facemesh
+
+    monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    box = (100, 60, 220, 180)
+    alone = det.detect(noise(), landmark_detector="network", box=box)
+    # the face mesh reads the network's points shifted by 3 px: the fused points lie between,
+    # nearer the face mesh's where the network is less sure than the face mesh's σ
+    mesh = _mesh_reads(alone.points + 3.0)
+    monkeypatch.setattr(facemesh, "detect_landmarks", mesh)
+    found = det.detect(noise(), box=box)
+    assert found.detector == "network box + facemesh" and found.score == alone.score
+    np.testing.assert_allclose(mesh.boxes[0], box)
+    shift = found.points - alone.points
+    assert ((shift > 0) & (shift < 3)).all()
+    assert (found.sigma_px < alone.sigma_px).all() and (found.ibug68_sigma_px < alone.ibug68_sigma_px).all()
+    np.testing.assert_array_equal(found.box, alone.box)
+    # without a box the face mesh reads the network's own box (its 68 points' extent)
+    mesh.boxes.clear()
+    found = det.detect(noise())
+    np.testing.assert_allclose(mesh.boxes[0], found.box)
+    assert found.detector.endswith("+ facemesh")
+
+
+def test_fused_keeps_one_reading_where_the_other_finds_no_face(plugin, nets, monkeypatch, tmp_path):
+    import morphable.detection as det
+    from morphable.detection import facemesh, plugins
 
     def no_face(image, box=None, face_detector="auto"):
         raise FitError("image: no face found")
 
     monkeypatch.setattr(det, "_facemesh_installed", lambda: True)
+    box = (100, 60, 220, 180)
+    # the face mesh finds nothing in the network's box: the network's reading alone
     monkeypatch.setattr(facemesh, "detect_landmarks", no_face)
-    found = det.detect(noise(), box=(100, 60, 220, 180))
-    assert found.detector.startswith("network") and found.sigma_px.shape == (478,)
-    np.testing.assert_array_equal(det.detect_landmarks(noise(), box=(100, 60, 220, 180)), found.points)
-    np.testing.assert_array_equal(det.detect_ibug68(noise(), box=(100, 60, 220, 180)), found.ibug68)
-    # the face mesh named, a box the network does not score as a face (a video's carried box
-    # on a frame without it), or the network unable to run: the face mesh's failure stands
+    found = det.detect(noise(), box=box)
+    assert found.detector == "network box"
+    np.testing.assert_array_equal(det.detect_landmarks(noise(), box=box), found.points)
+    np.testing.assert_array_equal(det.detect_ibug68(noise(), box=box), found.ibug68)
     with pytest.raises(FitError, match="no face found"):
         det.detect(noise(), landmark_detector="facemesh")
+    # a network that scores no face: in a given box (a video's carried box on a frame without
+    # the face) and in the whole photo the face mesh decides alone
     monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(nets["blind"]))
-    from morphable.detection import plugins
-
     plugins.detector.cache_clear()
-    with pytest.raises(FitError, match="^image: no face found$"):
-        det.detect(noise(), box=(100, 60, 220, 180))
+    with pytest.raises(FitError, match=r"^image: the landmark network scores the box 0\.0\d as a face "
+                                       r".*; nor by the face mesh$"):
+        det.detect(noise(), box=box)
+    from PIL import Image
+
+    photo = tmp_path / "noise.png"
+    Image.fromarray(noise()).save(photo)
+    with pytest.raises(FitError, match=f"^{re.escape(str(photo))}: no face found by the landmark "
+                                       r"network .*; nor by the face mesh$"):
+        det.detect(photo)
+    mesh = _mesh_reads(np.full((478, 2), 150.0))
+    monkeypatch.setattr(facemesh, "detect_landmarks", mesh)
+    assert det.detect(noise(), box=box).detector == "facemesh auto"
+    assert det.detect(noise()).detector == "facemesh auto" and mesh.boxes[-1] is None
+    # the network unable to run: auto is the face mesh alone
     monkeypatch.setenv("MORPHABLE_LANDMARK_WEIGHTS", str(tmp_path / "missing.pt"))
     det._network_ready.cache_clear()
-    with pytest.raises(FitError, match="no face found"):
+    monkeypatch.setattr(facemesh, "detect_landmarks", no_face)
+    with pytest.raises(FitError, match="^image: no face found$"):
         det.detect(noise())
 
 
@@ -456,3 +515,23 @@ def test_committed_weights_find_a_face_and_none_in_noise(data_dir):
     for seed in range(3):
         with pytest.raises(FitError, match="no face found by the landmark network"):
             det.detect(noise(seed=seed), face_detector="windows")
+
+
+def test_committed_weights_fused_with_the_face_mesh_by_default(data_dir):
+    # "auto" is the network and the face mesh fused where both can run: on a frontal photo the
+    # fused 68 points are as close to the annotation as the face mesh's own test asks
+    pytest.importorskip("mediapipe")
+    import morphable.detection as det
+    from morphable.io.landmark_files import read_pts
+
+    photo = data_dir / "images" / "image_0010.png"
+    if det.resolve_detectors()[0] != "fused":
+        pytest.skip("the committed weights cannot run here")
+    found = det.detect(photo)
+    alone = det.detect(photo, landmark_detector="network")
+    assert found.detector == alone.detector + " + facemesh"
+    assert (found.sigma_px < alone.sigma_px).all()
+    truth = read_pts(photo.with_suffix(".pts"))
+    size = np.sqrt(np.prod(truth.max(0) - truth.min(0)))
+    err = np.linalg.norm(found.ibug68 - truth, axis=1) / size
+    assert err.mean() < 0.04 and np.median(err[17:]) < 0.03

@@ -11,13 +11,17 @@
   ``"cnn"`` (whichever is installed), ``"windows"`` (the network's own face score over a grid
   of candidate windows), ``"auto"`` (mediapipe's short-range then full-range detector, else
   dlib's HOG, then the windows when they find no face);
-- ``"auto"``: the face mesh when mediapipe can be imported, and for a face it does not find
-  the network when its plugin is installed and can run (torch and its weights); else the
-  network; else dlib (the committed network is less accurate than the face mesh on
-  near-frontal photos but finds nearly every face: docs/landmark_net.md has the figures that keep it
-  second); ``face_detector="auto"``: the
-  landmark detector's default (the face mesh's whole-photo search with the full-range
-  fallback, dlib's HOG).
+- ``landmark_detector="fused"``: the network, then the face mesh in the network's box, the
+  two readings fused by their uncertainty (:func:`.fusion.fuse`: the network's σ per point, the
+  face mesh's from how far it lies from the network); the network alone where the face mesh
+  finds no face there, the face mesh alone where the network finds none; the network's face
+  detectors;
+- ``"auto"``: "fused" where mediapipe is installed and the network's plugin can run (torch and
+  its weights), else the face mesh, else the network, else dlib (docs/landmark_net.md: the
+  fused points fit better than either's alone on the held-out faces and on AFLW2000-3D);
+  ``face_detector="auto"``: the landmark detector's default (the face mesh's whole-photo
+  search with the full-range fallback, dlib's HOG, the network's mediapipe boxes then its
+  window search).
 
 :func:`detect` gives a :class:`~.result.Detection` (points, σ per point where the detector
 predicts one, the 68 iBUG points, the convention, the face score and box);
@@ -49,13 +53,17 @@ __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect"
            "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
            "read_image", "image_size", "as_image"]
 
-LANDMARK_DETECTORS = ("auto", "facemesh", "dlib", "network")
-"""The landmark detectors by name ("network": the neural plugin's, when installed)."""
+LANDMARK_DETECTORS = ("auto", "fused", "facemesh", "dlib", "network")
+"""The landmark detectors by name ("network": the neural plugin's, when installed; "fused":
+the network and the face mesh together)."""
+_NETWORK_FACES = ("auto", "short-range", "full-range", "hog", "cnn", "windows")
 FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("auto", "hog", "cnn"),
-                  "network": ("auto", "short-range", "full-range", "hog", "cnn", "windows")}
-"""The face detectors each landmark detector takes ("auto": its default). A plugin other than
-the network lists its own (its class's ``FACE_DETECTORS``)."""
+                  "network": _NETWORK_FACES, "fused": _NETWORK_FACES}
+"""The face detectors each landmark detector takes ("auto": its default; "fused": the
+network's, which finds the face). A plugin other than the network lists its own (its class's
+``FACE_DETECTORS``)."""
 BUILTIN = ("facemesh", "dlib")
+FUSED = "fused"
 
 
 @functools.lru_cache(maxsize=None)
@@ -83,18 +91,24 @@ def _face_detectors(landmark_detector: str) -> tuple:
 
 def resolve_detectors(landmark_detector: str = "auto", face_detector: str = "auto") -> tuple[str, str]:
     """The choice as given -> ``(landmark detector, face detector)`` as run: "auto" landmark
-    detector resolved to "facemesh" (mediapipe installed), else "network" (plugin installed,
-    torch and weights present), else "dlib"; dlib's "auto" face detector to "hog" (the
-    face mesh and the network keep "auto", their own strategy). InputError for an unknown name,
-    a plugin that is not installed, or a face detector of another landmark detector."""
+    detector resolved to "fused" (mediapipe installed and the network's plugin ready: torch
+    and weights present), else "facemesh", else "network", else "dlib"; dlib's "auto" face
+    detector to "hog" (the others keep "auto", their own strategy). InputError for an unknown
+    name, a plugin that is not installed, "fused" without mediapipe, or a face detector of
+    another landmark detector."""
     if landmark_detector not in LANDMARK_DETECTORS and landmark_detector not in plugins.entry_points():
         raise InputError(f"landmark detector: choose from {', '.join(LANDMARK_DETECTORS)}, "
                          f"got {landmark_detector!r}")
     if landmark_detector == "auto":
-        landmark_detector = ("facemesh" if _facemesh_installed() else
-                             "network" if _network_ready() else "dlib")
+        mesh, network = _facemesh_installed(), _network_ready()
+        landmark_detector = (FUSED if mesh and network else "facemesh" if mesh else
+                             "network" if network else "dlib")
+    if landmark_detector == FUSED and not _facemesh_installed():
+        raise InputError("landmark detector 'fused' needs mediapipe (pip install mediapipe) "
+                         "besides the network")
     if landmark_detector not in BUILTIN:
-        plugins.detector_class(landmark_detector)  # not installed: its one line, now
+        # not installed: its one line, now
+        plugins.detector_class("network" if landmark_detector == FUSED else landmark_detector)
     allowed = _face_detectors(landmark_detector)
     if face_detector not in allowed:
         other = next((k for k in BUILTIN if face_detector in FACE_DETECTORS[k]), None)
@@ -122,36 +136,51 @@ def detect(image, *, landmark_detector: str = "auto", face_detector: str = "auto
     -------
     :class:`~.result.Detection`: the face mesh's 478 points (3D convention, no σ), dlib's 68
     (2D convention, no σ), the network's 478 face-mesh rows with their σ and its own 68 iBUG
-    rows (3D convention, score, box). With "auto", a face the face mesh does not find is
-    looked for by the network where it can run (:attr:`Detection.detector` says which found
-    it; in a given box, only where the network scores it a face, :data:`FACE_PROBABILITY`):
-    the face mesh misses faces turned far away, which the network finds.
+    rows (3D convention, score, box), "fused" the two fused with their σ
+    (:attr:`Detection.detector` says which ran: e.g. ``"network short-range + facemesh"``, or
+    ``"network windows"`` where the face mesh found no face in the network's box).
 
     Raises
     ------
     FitError when no face is found; InputError for a bad image, box or detector name.
     """
     landmarks, faces = resolve_detectors(landmark_detector, face_detector)
+    if landmarks == FUSED:
+        return _fused(image, faces, box)
+    return _detect(image, landmarks, faces, box)
+
+
+def _fused(image, faces: str, box) -> Detection:
+    """The "fused" detector: the network finds the face and reads it, the face mesh reads it in
+    the same box, :func:`.fusion.fuse` makes one reading of the two. A face the network does
+    not find (or, in a given box, does not score a face: a video's carried box on a frame
+    without the face) is the face mesh's alone: the face mesh has its own face check."""
+    from .fusion import fuse
+
+    img, name = as_image(image)          # decoded once for both detectors
+    mesh_faces = faces if faces in FACE_DETECTORS["facemesh"] else "auto"
     try:
-        return _detect(image, landmarks, faces, box)
+        found = _detect(img, "network", faces, box, name)
     except FitError as e:
-        if not (landmark_detector == "auto" and landmarks == "facemesh" and _network_ready()):
-            raise
         missed = e
-    # the face mesh's face detectors are the network's too; in a given box the network reads
-    # points whatever the box holds, so its face score decides (a video's carried box on a
-    # frame without the face)
+    else:
+        if box is None or found.score is None or found.score >= FACE_PROBABILITY:
+            try:
+                mesh = _detect(img, "facemesh", mesh_faces, found.box if box is None else box)
+            except FitError:
+                return found
+            return fuse(found, mesh)
+        missed = FitError(f"{name}: the landmark network scores the box {found.score:.2f} "
+                          f"as a face (a face needs {FACE_PROBABILITY})")
     try:
-        found = _detect(image, "network", faces, box)
-    except FitError as e:
-        raise FitError(f"{e}; nor by the face mesh") from None
-    if found.score is not None and found.score < FACE_PROBABILITY:
-        raise missed
-    return found
+        return _detect(img, "facemesh", mesh_faces, box)
+    except FitError:
+        raise FitError(f"{missed}; nor by the face mesh") from None
 
 
-def _detect(image, landmarks: str, faces: str, box) -> Detection:
-    """:func:`detect` with the detectors resolved, without the "auto" fallback."""
+def _detect(image, landmarks: str, faces: str, box, name: str | None = None) -> Detection:
+    """:func:`detect` with the detectors resolved, one detector (``name``: the photo's, for
+    messages, where ``image`` is its decoded array)."""
     if landmarks in BUILTIN:
         if landmarks == "facemesh":
             from .facemesh import detect_landmarks as mesh
@@ -166,7 +195,7 @@ def _detect(image, landmarks: str, faces: str, box) -> Detection:
         return Detection(pts, None, pts, None, "ibug68", "2d", describe(landmarks, faces))
     img, _ = as_image(image)
     return plugins.detector(landmarks).detect(img, box=None if box is None else check_box(box),
-                                              face_detector=faces, name=_name(image))
+                                              face_detector=faces, name=name or _name(image))
 
 
 def _name(image) -> str:
@@ -209,7 +238,8 @@ def detect_ibug68(image, *, landmark_detector: str = "auto", face_detector: str 
 def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str = "auto") -> np.ndarray:
     """Face boxes of the landmark detector's face detector, largest first -> (F, 4) float64
     ``(left, top, right, bottom)`` px. The face mesh's "auto" is its full-range detector; the
-    network's, the face detector it would use (its windows when that finds none)."""
+    network's (and "fused"'s), the face detector it would use (its windows when that finds
+    none)."""
     landmarks, faces = resolve_detectors(landmark_detector, face_detector)
     if landmarks == "facemesh":
         from .facemesh import detect_faces as boxes
@@ -219,7 +249,8 @@ def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str =
         from .dlib_detector import detect_faces as boxes
 
         return boxes(image, face_detector=faces)
-    return plugins.detector(landmarks).detect_faces(as_image(image)[0], face_detector=faces)
+    network = "network" if landmarks == FUSED else landmarks
+    return plugins.detector(network).detect_faces(as_image(image)[0], face_detector=faces)
 
 
 def describe(landmark_detector: str = "auto", face_detector: str = "auto") -> str:
