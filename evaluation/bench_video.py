@@ -152,21 +152,24 @@ def rotation_error_deg(rotations, truth) -> np.ndarray:
 
 
 def per_frame_results(path, model) -> list:
-    """Independent fits: each frame detected and fitted alone -> FitResult or None per frame."""
-    from morphable.detection import detect_landmarks
+    """Independent fits: each frame detected and fitted alone, as ``morphable fit`` fits a
+    detection (:func:`morphable.fitting.options.detection_settings`) -> FitResult or None per
+    frame."""
+    from morphable.detection import detect
     from morphable.errors import FitError
     from morphable.fitting import fit_landmarks
-    from morphable.fitting.noise import DETECTED_MODEL_STD_MM
+    from morphable.fitting.options import detection_settings
     from morphable.video import iter_frames
 
     out = []
     for frame in iter_frames(path):
         try:
-            pts = detect_landmarks(frame.image)
+            found = detect(frame.image)
         except FitError:
             out.append(None)
             continue
-        out.append(fit_landmarks(model, pts, frame.size, model_std_mm=DETECTED_MODEL_STD_MM))
+        out.append(fit_landmarks(model, found.points, frame.size,
+                                 **detection_settings([found], len(found.points))))
     return out
 
 

@@ -9,8 +9,9 @@
 2. every frame, streamed (:func:`morphable.video.iter_frames`) in batches of
    :func:`chunk_frames` frames: landmarks detected in the box of the previous frame's points
    (:func:`carried_box`), the face detector run only when there is no box or the face is not
-   found in it; then pose and expression of the batch fitted at once with the identity held
-   (:func:`fit_frames`, :func:`fixed_identity_model`); a frame whose fit misses its points
+   found in it; then pose and expression of the batch fitted at once with the identity held,
+   each frame's detection as ``morphable fit`` fits one (its σ per point, the detector's
+   convention: :func:`fit_frames`, :func:`fixed_identity_model`); a frame whose fit misses its points
    (the box held no face) is detected again from scratch. A frame without a face is *lost*
    (NaN rows), never an error;
 3. the temporal prior (:func:`smooth_trajectories`): each run of tracked frames is the most
@@ -64,8 +65,9 @@ class TrackResult:
     landmarks_68_px : (F, 68, 2) the fitted face's iBUG-68 points projected, px (NaN where the
         model has none), as in fit reports
     detector_px : (F, L, 2) float32 the detector's points, px
-    detector_std_px : (F,) the detector's σ, px, NaN where it gives none (the face mesh and
-        dlib give none)
+    detector_std_px : (F,) the detector's σ, px: per frame the one σ of the same total weight
+        as its points' own (:func:`morphable.fitting.noise.effective_std`); NaN where it gives
+        none (the face mesh and dlib give none)
     raw_euler_deg, raw_expression : the per-frame fits before the temporal prior
     landmark_rmse_px : (F,) RMS distance of the fitted to the detected points, px
     fps : float, average frame rate of the video
@@ -265,8 +267,9 @@ def _batches(items, n: int):
 
 
 def _detect(image, box, landmark_detector: str, face_detector: str):
-    """:func:`morphable.detection.detect` in ``box`` (None: the whole image) -> ((L, 2) px,
-    the box to carry to the next frame), or (None, None) where it finds no face. The box
+    """:func:`morphable.detection.detect` in ``box`` (None: the whole image) -> (the
+    :class:`~morphable.detection.result.Detection`, the box to carry to the next frame), or
+    (None, None) where it finds no face. The box
     carried is the detector's own (:attr:`Detection.box`, in the convention its ``box=``
     reads: the landmark network's framing) where it gives one, else the points' box
     (:func:`carried_box`)."""
@@ -278,7 +281,27 @@ def _detect(image, box, landmark_detector: str, face_detector: str):
     except FitError:
         return None, None
     carry = tuple(float(v) for v in det.box) if det.box is not None else carried_box(det.points)
-    return det.points, carry
+    return det, carry
+
+
+def _frame_settings(found: list) -> dict:
+    """The fit settings of a group of frames' detections (all Detections, or all bare
+    points): ``morphable fit``'s for detections (their σ, the 3D convention of 478-point
+    detectors: :func:`morphable.fitting.options.detection_settings`), the detector's model
+    error alone for bare points."""
+    from .detection.result import Detection
+    from .fitting.noise import DETECTED_MODEL_STD_MM
+    from .fitting.options import detection_settings
+
+    if isinstance(found[0], Detection):
+        return detection_settings(found, len(found[0].points))
+    return {"model_std_mm": DETECTED_MODEL_STD_MM}
+
+
+def _points(found):
+    from .detection.result import Detection
+
+    return found.points if isinstance(found, Detection) else np.asarray(found, dtype=np.float64)
 
 
 def fit_frames(fixed, points, image_size) -> list:
@@ -289,26 +312,29 @@ def fit_frames(fixed, points, image_size) -> list:
     Parameters
     ----------
     fixed : MorphableModel with the identity in its mean
-    points : list of (L, 2) px detected points, or None (no face)
+    points : list, per frame, of a :class:`~morphable.detection.result.Detection` (fitted as
+        ``morphable fit`` fits it: its σ, its convention), (L, 2) px detected points (a
+        detector without σ, outline points sliding), or None (no face)
     image_size : (W, H) px, the same for all frames
 
     Returns a list with, per frame, ``(camera, (E,) expression, landmark RMSE px)``, or None
     where there are no points or the fit misses them by more than :data:`LOST_RMSE_FRACTION`
     of the face's size (the face is lost).
     """
+    from .detection.result import Detection
     from .fitting import fit_landmarks
-    from .fitting.noise import DETECTED_MODEL_STD_MM
 
     out = [None] * len(points)
     have = [i for i, p in enumerate(points) if p is not None]
     groups = {}
-    for i in have:    # one fit per point count (one detector gives one)
-        groups.setdefault(len(points[i]), []).append(i)
+    for i in have:    # one fit per point count and kind (one detector gives one)
+        groups.setdefault((len(_points(points[i])), isinstance(points[i], Detection)), []).append(i)
     for ids in groups.values():
-        y = np.stack([points[i] for i in ids])
+        y = np.stack([_points(points[i]) for i in ids])
         try:
             fit = fit_landmarks(fixed, y, np.tile(np.asarray(image_size, dtype=np.float64), (len(ids), 1)),
-                                n_identity=0, shared_identity=False, model_std_mm=DETECTED_MODEL_STD_MM)
+                                n_identity=0, shared_identity=False,
+                                **_frame_settings([points[i] for i in ids]))
             fits = [(fit.cameras[k], fit.expression[k], float(fit.landmark_rmse_px[k])) for k in range(len(ids))]
         except FitError:
             if len(ids) == 1:
@@ -317,8 +343,8 @@ def fit_frames(fixed, points, image_size) -> list:
             for i in ids:
                 out[i] = fit_frames(fixed, [points[i]], image_size)[0]
             continue
-        good = [i for i, f in zip(ids, fits)
-                if f[2] <= LOST_RMSE_FRACTION * np.linalg.norm(np.nanmax(points[i], 0) - np.nanmin(points[i], 0))]
+        good = [i for i, f in zip(ids, fits) if f[2] <= LOST_RMSE_FRACTION * np.linalg.norm(
+            np.nanmax(_points(points[i]), 0) - np.nanmin(_points(points[i]), 0))]
         if len(good) < len(ids) and good:
             # frames fitted together are not quite independent where one of them fails (the
             # fitter's iterations run on while it does; 1e-3 rad on the others): the good ones
@@ -357,6 +383,7 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
     from .camera import Camera, euler_to_matrix
     from .detection import describe
     from .fitting.files import fit_files
+    from .fitting.noise import effective_std
     from .fitting.result import FitResult
     from .video import iter_frames, probe
 
@@ -379,7 +406,7 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
     fixed = fixed_identity_model(model, alpha)
     F, E = info.n_frames, model.n_expression
     rows = {"time_s": [], "tracked": [], "detected": [], "euler": [], "translation": [], "scale": [],
-            "expression": [], "detector": [], "rmse": []}
+            "expression": [], "detector": [], "sigma": [], "rmse": []}
     frames = iter_frames(path)
     if progress:
         from tqdm import tqdm
@@ -415,16 +442,18 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
             if fit is None:
                 for k, v in (("euler", np.full(3, np.nan)), ("translation", np.full(3, np.nan)),
                              ("scale", np.nan), ("expression", np.full(E, np.nan)),
-                             ("detector", None), ("rmse", np.nan)):
+                             ("detector", None), ("sigma", np.nan), ("rmse", np.nan)):
                     rows[k].append(v)
                 continue
-            n_points = n_points or len(pts)
+            n_points = n_points or len(pts.points)
             cam, expression, rmse = fit
             rows["euler"].append(cam.euler_deg)
             rows["translation"].append(cam.translation)
             rows["scale"].append(cam.scale)
             rows["expression"].append(expression)
-            rows["detector"].append(np.asarray(pts, dtype=np.float32))
+            rows["detector"].append(np.asarray(pts.points, dtype=np.float32))
+            rows["sigma"].append(np.nan if pts.sigma_px is None else
+                                 float(effective_std(pts.sigma_px[None] ** 2, np.ones((1, len(pts.sigma_px)), bool))[0]))
             rows["rmse"].append(rmse)
     tracked = np.array(rows["tracked"], dtype=bool)
     n = len(tracked)
@@ -455,6 +484,6 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
                        detected=np.array(rows["detected"], dtype=bool), euler_deg=euler,
                        translation=translation, scale=scale, expression=expression,
                        landmarks_68_px=lm68, detector_px=detector,
-                       detector_std_px=np.full(n, np.nan), raw_euler_deg=raw_euler,
+                       detector_std_px=np.array(rows["sigma"], dtype=np.float64), raw_euler_deg=raw_euler,
                        raw_expression=raw_expr, landmark_rmse_px=np.array(rows["rmse"], dtype=np.float64),
                        fps=info.fps, image_size=(info.width, info.height), fit=projected)

@@ -415,11 +415,12 @@ ROWS = _rows()
 @pytest.mark.parametrize("call, message", ROWS)
 def test_bad_input_rows(call, message, nets, tmp_path, monkeypatch):
     from morphable.detection import Detection
+    from morphable.detection.fusion import fuse
     from neural.landmark_detector import NetworkDetector
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "corrupt.pt").write_bytes(np.random.default_rng(0).bytes(2000))
-    scope = {"np": np, "NetworkDetector": NetworkDetector, "Detection": Detection,
+    scope = {"np": np, "NetworkDetector": NetworkDetector, "Detection": Detection, "fuse": fuse,
              "det": NetworkDetector(nets["face"]), "blind": NetworkDetector(nets["blind"]),
              "img": noise(), "pts": np.zeros((68, 2))}
     with pytest.raises((InputError, FitError)) as e:
@@ -429,7 +430,7 @@ def test_bad_input_rows(call, message, nets, tmp_path, monkeypatch):
 
 
 def test_bad_input_table_has_the_rows():
-    assert len(ROWS) >= 8
+    assert len(ROWS) >= 9
 
 
 def test_face_boxes_given_back_frame_the_same_crop(nets, monkeypatch):

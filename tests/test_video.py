@@ -233,6 +233,12 @@ def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(f
     assert slope == pytest.approx(2.0, abs=0.4)
     assert probe(face_clip / "trk" / "overlay.mp4").n_frames == 12
     _check_track_glb(face_clip / "trk" / "track.glb", t)
+    # the detector's σ per frame where it gives one (the network, alone or fused), NaN if lost
+    from morphable.detection import resolve_detectors
+
+    assert np.isnan(t["detector_std_px"][[3, 4]]).all()
+    if resolve_detectors()[0] in ("fused", "network"):
+        assert (t["detector_std_px"][ok] > 0).all()
 
 
 def _check_track_glb(path, t):
@@ -333,6 +339,36 @@ def test_batched_fits_equal_one_fit_per_frame_and_refuse_points_without_a_face(s
         np.testing.assert_allclose(cam.translation, one.cameras[0].translation, atol=1e-7)
         np.testing.assert_allclose(expression, one.expression[0], atol=1e-9)
         assert rmse == pytest.approx(float(one.landmark_rmse_px[0]), rel=1e-9) and rmse < 4
+
+
+def test_detections_are_fitted_as_morphable_fit_fits_them(sfm):
+    # a Detection brings its σ and its convention (478 points: fixed surface points); bare
+    # points are a detector without σ whose outline slides
+    from morphable.camera import Camera
+    from morphable.detection import Detection
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.options import detection_settings
+    from morphable.fitting.schemes import fit_scheme
+    from morphable.tracking import fit_frames, fixed_identity_model
+
+    rng = np.random.default_rng(4)
+    fixed = fixed_identity_model(sfm, rng.normal(0, 1, sfm.n_identity))
+    scheme = fit_scheme(fixed, 478)
+    found = []
+    for yaw in (-40.0, 0.0, 35.0):
+        cam = Camera.looking_at_face(image_size=(640, 480), yaw=yaw)
+        pts = cam.project(scheme.points(fixed.mean.reshape(-1, 3))) + rng.normal(0, 1.0, (478, 2))
+        sigma = rng.uniform(0.5, 4.0, 478)
+        found.append(Detection(pts, sigma, pts[:68], sigma[:68], "facemesh478", "3d", "network box"))
+    fits = fit_frames(fixed, found, (640, 480))
+    bare = fit_frames(fixed, [d.points for d in found], (640, 480))
+    for d, (cam, expression, rmse), other in zip(found, fits, bare):
+        one = fit_landmarks(fixed, d.points, (640, 480), n_identity=0, shared_identity=False,
+                            **detection_settings([d], 478))
+        np.testing.assert_allclose(cam.rotation, one.cameras[0].rotation, atol=1e-8)
+        np.testing.assert_allclose(expression, one.expression[0], atol=1e-8)
+        assert rmse == pytest.approx(float(one.landmark_rmse_px[0]), rel=1e-8)
+        assert not np.allclose(other[0].rotation, cam.rotation, atol=1e-8)
 
 
 def test_bench_video_averages_subjects_and_refuses_no_subjects(capsys):
