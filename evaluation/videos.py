@@ -35,7 +35,7 @@ from morphable.video import sample_indices
 
 __all__ = ["Condition", "CONDITIONS", "Video", "frontal_frame", "trajectory", "sample_frames",
            "project_landmarks", "synthetic_video", "render_frames", "write_rendered_video",
-           "detect_face", "detected_points"]
+           "detect_face", "detected_points", "detect_frames"]
 
 
 @dataclass(frozen=True)
@@ -375,3 +375,27 @@ def detected_points(detections, n_points: int):
             points[i] = d.points if len(d.points) == n_points else d.ibug68
     sigma = landmark_noise(detections, 1.0, n_points)
     return points, None if np.ndim(sigma) == 0 else sigma
+
+
+def detect_frames(images, detector=("auto", "auto"), n_points: int | None = None):
+    """Each frame's largest face (:func:`detect_face`) and the fit's points from them
+    (:func:`detected_points`).
+
+    Parameters
+    ----------
+    images : list of (H, W, 3) frames, None for a frame not to detect (an annotated one)
+    detector : (landmark detector, face detector) of :func:`morphable.detection.detect`
+    n_points : 478 or 68 rows per frame; default the detector's
+        (:func:`morphable.detection.landmark_count`)
+
+    Returns
+    -------
+    detections : list of Detection or None (no face, or not detected), one per frame
+    points : (N, n_points, 2) float64 px, NaN for a frame without a face
+    sigma_px : (N, n_points) float64 px or None (:func:`detected_points`)
+    """
+    from morphable.detection import landmark_count
+
+    found = [None if im is None else detect_face(im, *detector) for im in images]
+    n = landmark_count(*detector) if n_points is None else n_points
+    return (found, *detected_points(found, n))

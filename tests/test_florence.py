@@ -628,6 +628,25 @@ def test_detected_points_take_each_detections_rows_and_sigma():
     assert detected_points([mesh], 478)[1] is None  # no σ: the fit estimates the noise
 
 
+def test_detect_frames_skips_frames_not_to_detect(monkeypatch):
+    from morphable.detection.result import Detection
+    from evaluation import videos
+
+    pts = np.full((68, 2), 7.0)
+    seen = []
+
+    def detect_face(image, *detector):
+        seen.append((image, detector))
+        return Detection(pts, np.full(68, 2.0), pts, np.full(68, 2.0), "ibug68", "2d", "stub")
+
+    monkeypatch.setattr(videos, "detect_face", detect_face)
+    found, lm, sigma = videos.detect_frames(["a", None, "c"], ("dlib", "hog"))
+    assert [f is None for f in found] == [False, True, False]
+    assert seen == [("a", ("dlib", "hog")), ("c", ("dlib", "hog"))]     # the None frame is not read
+    assert lm.shape == (3, 68, 2) and np.isnan(lm[1]).all() and (lm[[0, 2]] == 7.0).all()
+    assert (sigma[[0, 2]] == 2.0).all()
+
+
 def test_a_detectors_sigma_reaches_the_florence_fit(james, sfm, monkeypatch):
     # a detector that predicts σ (the landmark network) has each point fitted with it, not
     # with one estimated noise; a frame without a face is left out

@@ -132,7 +132,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
     from morphable.detection import landmark_count
     from morphable.io.landmark_files import read_pts
 
-    from ..videos import detect_face, detected_points
+    from ..videos import detect_frames
 
     d = folder / condition
     frames = sorted(p for p in d.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".ppm", ".bmp"))
@@ -150,8 +150,7 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
     n = landmark_count(*detector) if detected.all() else 68
     images = [np.asarray(Image.open(p).convert("RGB")) if with_frames or found else None
               for p, found in zip(chosen, detected)]
-    found = [detect_face(im, *detector) if ok else None for im, ok in zip(images, detected)]
-    lm, sigma = detected_points(found, n)
+    _, lm, sigma = detect_frames([im if ok else None for im, ok in zip(images, detected)], detector, n)
     for i, pts in annotated.items():
         lm[i] = pts
     return Frames(lm, sizes.pop(), np.stack(images) / 255.0 if with_frames else None,
@@ -161,20 +160,19 @@ def _frames_from_folder(folder: Path, condition: str, k: int, with_frames: bool 
 def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("auto", "auto")):
     """The Florence protocol's frames of a real video: ``k`` frames spread uniformly
     (:func:`morphable.video.sample_frames`, all of a shorter video), their landmarks (and σ)
-    detected (:func:`evaluation.videos.detect_face`, ``detector`` = (landmark detector, face
+    detected (:func:`evaluation.videos.detect_frames`, ``detector`` = (landmark detector, face
     detector)) -> (:class:`Frames`: NaN rows for frames without a face, the frames themselves
     when ``with_frames``; description for the report).
 
     InputError naming the file when it is no readable video or no sampled frame shows a face.
     """
-    from morphable.detection import describe, landmark_count
+    from morphable.detection import describe
     from morphable.video import sample_frames
 
-    from ..videos import detect_face, detected_points
+    from ..videos import detect_frames
 
     frames = sample_frames(path, k)
-    detections = [detect_face(f.image, *detector) for f in frames]
-    lm, sigma = detected_points(detections, landmark_count(*detector))
+    detections, lm, sigma = detect_frames([f.image for f in frames], detector)
     found = np.isfinite(lm).all(-1).any(-1)
     if not found.any():
         raise InputError(f"{path}: no face found in any of the {len(frames)} sampled frames")
@@ -219,12 +217,11 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
 
         images = render_frames(scan, video, seed=seed)
     if detect:
-        from morphable.detection import describe, landmark_count
+        from morphable.detection import describe
 
-        from ..videos import detect_face, detected_points, frontal_frame, project_landmarks
+        from ..videos import detect_frames, frontal_frame, project_landmarks
 
-        found = [detect_face(im, *detect) for im in images]
-        lm, sigma = detected_points(found, landmark_count(*detect))
+        found, lm, sigma = detect_frames(images, detect)
         desc["landmarks"] = f"{describe(*detect)} on rendered frames"
         desc["frame_detectors"] = [d and d.detector for d in found]
         # how far the detector is from the scan's own landmarks, projected without noise
