@@ -127,7 +127,8 @@ def detect(image, *, landmark_detector: str = "auto", face_detector: str = "auto
     Parameters
     ----------
     image : path or (H, W, 3) array (see :func:`.images.as_image`)
-    landmark_detector : "auto", "facemesh", "dlib", "network" or another installed plugin's name
+    landmark_detector : "auto", "fused", "facemesh", "dlib", "network" or another installed
+        plugin's name
     face_detector : "auto" or one of ``FACE_DETECTORS[landmark detector]``
     box : (left, top, right, bottom) px, optional; skips face detection (a video's previous
         frame's :attr:`Detection.box`, for instance)
@@ -210,13 +211,13 @@ def detect_landmarks(image, *, landmark_detector: str = "auto", face_detector: s
     Parameters
     ----------
     image : path or (H, W, 3) array (see :func:`.images.as_image`)
-    landmark_detector : {"auto", "facemesh", "dlib", "network"} or a plugin's name
+    landmark_detector : {"auto", "fused", "facemesh", "dlib", "network"} or a plugin's name
     face_detector : "auto" or one of ``FACE_DETECTORS[landmark detector]``
     box : (left, top, right, bottom) pixels, optional; skips face detection
 
     Returns
     -------
-    (478, 2) float64 (facemesh, the network: mediapipe's order) or (68, 2) (dlib, iBUG order)
+    (478, 2) float64 (facemesh, the network, fused: mediapipe's order) or (68, 2) (dlib, iBUG order)
     pixels, 0-based, x right, y down.
 
     Raises
