@@ -30,6 +30,7 @@ is held out).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -47,17 +48,12 @@ RULES = {"independent": (0.5, 1.0), "double": (1.0, 1.0), "half": (0.25, 0.5)}
 
 
 def rule(name: str):
-    """The ``other_std_px(measured, other) -> px`` of rule ``name`` (:data:`RULES`)."""
-    from morphable.detection.fusion import FLOOR
+    """The ``other_std_px(measured, other) -> px`` of rule ``name`` (:data:`RULES`): the
+    library's :func:`~morphable.detection.fusion.other_std_px` with that rule's coefficients."""
+    from morphable.detection.fusion import other_std_px
 
     a, b = RULES[name]
-
-    def other_std_px(measured, other) -> float:
-        d2 = float(np.mean(np.sum((measured.points - other.points) ** 2, axis=1)))
-        s2 = float(np.mean(measured.sigma_px ** 2))
-        return float(np.sqrt(max(a * d2 - b * s2, FLOOR ** 2 * s2)))
-
-    return other_std_px
+    return functools.partial(other_std_px, a=a, b=b)
 
 
 def _readings(d: dict) -> list:

@@ -298,12 +298,6 @@ def _frame_settings(found: list) -> dict:
     return {"model_std_mm": DETECTED_MODEL_STD_MM}
 
 
-def _points(found):
-    from .detection.result import Detection
-
-    return found.points if isinstance(found, Detection) else np.asarray(found, dtype=np.float64)
-
-
 def fit_frames(fixed, points, image_size) -> list:
     """Pose and expression of frames with the identity held (``fixed``:
     :func:`fixed_identity_model`), all fitted at once (independent frames, one vectorised
@@ -325,12 +319,14 @@ def fit_frames(fixed, points, image_size) -> list:
     from .fitting import fit_landmarks
 
     out = [None] * len(points)
-    have = [i for i, p in enumerate(points) if p is not None]
+    # each frame's (L, 2) px points: a Detection's, or the bare points
+    xy = {i: p.points if isinstance(p, Detection) else np.asarray(p, dtype=np.float64)
+          for i, p in enumerate(points) if p is not None}
     groups = {}
-    for i in have:    # one fit per point count and kind (one detector gives one)
-        groups.setdefault((len(_points(points[i])), isinstance(points[i], Detection)), []).append(i)
+    for i, y in xy.items():    # one fit per point count and kind (one detector gives one)
+        groups.setdefault((len(y), isinstance(points[i], Detection)), []).append(i)
     for ids in groups.values():
-        y = np.stack([_points(points[i]) for i in ids])
+        y = np.stack([xy[i] for i in ids])
         try:
             fit = fit_landmarks(fixed, y, np.tile(np.asarray(image_size, dtype=np.float64), (len(ids), 1)),
                                 n_identity=0, shared_identity=False,
@@ -343,8 +339,8 @@ def fit_frames(fixed, points, image_size) -> list:
             for i in ids:
                 out[i] = fit_frames(fixed, [points[i]], image_size)[0]
             continue
-        good = [i for i, f in zip(ids, fits) if f[2] <= LOST_RMSE_FRACTION * np.linalg.norm(
-            np.nanmax(_points(points[i]), 0) - np.nanmin(_points(points[i]), 0))]
+        good = [i for i, f in zip(ids, fits)
+                if f[2] <= LOST_RMSE_FRACTION * np.linalg.norm(np.nanmax(xy[i], 0) - np.nanmin(xy[i], 0))]
         if len(good) < len(ids) and good:
             # frames fitted together are not quite independent where one of them fails (the
             # fitter's iterations run on while it does; 1e-3 rad on the others): the good ones

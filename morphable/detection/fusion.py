@@ -22,24 +22,25 @@ FLOOR = 0.5
 readings that agree closely are not both nearly exact."""
 
 
-def other_std_px(measured: Detection, other: Detection) -> float:
-    """The other detector's σ on this face, px (one for all its points): the estimate for
-    independent errors, at least :data:`FLOOR` times the measured detector's RMS σ.
+def other_std_px(measured: Detection, other: Detection, *, a: float = 0.5, b: float = 1.0) -> float:
+    """The other detector's σ on this face, px (one for all its points):
+    ``σ_o² = a mean(|d|²) - b mean(σ_m²)`` over the face's points, ``d`` the distance between a
+    point's two readings, at least :data:`FLOOR` times the measured detector's RMS σ.
 
-    Two independent readings of a point, each with an isotropic error (σ_m, σ_o per
-    coordinate), lie ``|d|² = 2 (σ_m² + σ_o²)`` apart on average; over the face's points,
-    ``σ_o² = mean(|d|²) / 2 - mean(σ_m²)``. Of three rules tried (this one, and counting the
-    other detector's error two and four times larger), this one did best on the validation
-    sets taken together: the fits to the held-out faces of the training packs and the
-    Florence protocol's ICT and SFM subjects (docs/landmark_net.md, "The network and the face
-    mesh, fused").
+    The defaults are the estimate for independent errors: two independent readings of a point,
+    each with an isotropic error (σ_m, σ_o per coordinate), lie ``|d|² = 2 (σ_m² + σ_o²)``
+    apart on average. Of three rules compared on the validation sets (these coefficients,
+    (1, 1) and (1/4, 1/2): ``python -m evaluation.bench_fusion``), each of the others did
+    better on some sets and worse on others; this one lies between them and has the
+    derivation (docs/landmark_net.md, "The network and the face mesh, fused").
 
     measured : a Detection with ``sigma_px`` (the landmark network's)
     other : a Detection of the same scheme and face without σ (the face mesh's)
+    a, b : the rule's coefficients
     """
     d2 = float(np.mean(np.sum((measured.points - other.points) ** 2, axis=1)))
     s2 = float(np.mean(measured.sigma_px ** 2))
-    return float(np.sqrt(max(d2 / 2 - s2, FLOOR ** 2 * s2)))
+    return float(np.sqrt(max(a * d2 - b * s2, FLOOR ** 2 * s2)))
 
 
 def _mean(a, sa, b, sb):
