@@ -45,25 +45,25 @@ demo: $(STAMP)
 
 # the GAR's real training pack (docs/neural.md, "Real training data"); ~5 min on the 2 cores
 gar-data: $(STAMP)
-	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real64.npz --workers 2
+	$(BIN)/python -m neural.gar.build_real --data $(DATA) --out gar_data/real64.npz --workers 2
 
 # the same photos at 128 px for the GPU recipe, normals stored at 64 px so that the pack (56 MiB)
 # and the tree stay within the 64 MiB that reach a GPU machine (docs/neural.md, "GPU recipe");
 # refits nothing after gar-data (the fits are cached in gar_data/)
 gar-data-128: $(STAMP)
-	$(BIN)/python -m neural.build_real --data $(DATA) --out gar_data/real128.npz --resolution 128 \
+	$(BIN)/python -m neural.gar.build_real --data $(DATA) --out gar_data/real128.npz --resolution 128 \
 		--normal-resolution 64 --jpeg-quality 60 --max-mib 57 --workers 2
 
 # the landmark network's real packs (docs/landmark_packs.md) into the ignored landmark_data/:
 # the annotated photos (~10 min on the 2 cores), then the profiled ones (~30 min); a rerun
-# finishes a killed build. The synthetic faces: `python -m neural.build_synthetic`
+# finishes a killed build. The synthetic faces: `python -m neural.faces.build_synthetic`
 landmark-data: landmark-synthetic landmark-annotated landmark-profiled
 
 # 10,000 SFM and 6,000 ICT faces at 160 px (SFM: 199 s of rendering on 2 idle cores)
 landmark-synthetic: $(STAMP)
-	$(BIN)/python -m neural.build_synthetic --out landmark_data/synthetic_sfm160 --n 10000 \
+	$(BIN)/python -m neural.faces.build_synthetic --out landmark_data/synthetic_sfm160 --n 10000 \
 		--resolution 160 --seed 1 --model sfm --workers 2 --data $(DATA)
-	$(BIN)/python -m neural.build_synthetic --out landmark_data/synthetic_ict160 --n 6000 \
+	$(BIN)/python -m neural.faces.build_synthetic --out landmark_data/synthetic_ict160 --n 6000 \
 		--resolution 160 --seed 2 --model ict --workers 2 --data $(DATA)
 
 LANDMARK_PACKS = --synthetic landmark_data/synthetic_sfm160 landmark_data/synthetic_ict160 \
@@ -71,17 +71,17 @@ LANDMARK_PACKS = --synthetic landmark_data/synthetic_sfm160 landmark_data/synthe
 
 # the CPU recipe (docs/landmark_net.md); rerun to resume from runs/landmarks/checkpoint.pt
 landmark-train: $(STAMP)
-	$(BIN)/python -m neural.train_landmarks --out runs/landmarks --recipe cpu $(LANDMARK_PACKS)
+	$(BIN)/python -m neural.landmarks.train --out runs/landmarks --recipe cpu $(LANDMARK_PACKS)
 
 # the GPU recipe: one job, 8 minutes (issue "the landmark network at scale")
 landmark-gpu:
 	$(GPU_PYTHON) -m neural.gpu_recipe landmarks $(LANDMARK_PACKS) --out $(GPU_OUT)
 
 landmark-annotated: $(STAMP)
-	$(BIN)/python -m neural.build_annotated --data $(DATA) --out landmark_data/annotated
+	$(BIN)/python -m neural.faces.build_annotated --data $(DATA) --out landmark_data/annotated
 
 landmark-profiled: $(STAMP)
-	$(BIN)/python -m neural.build_profiled --data $(DATA) --out landmark_data/profiled \
+	$(BIN)/python -m neural.faces.build_profiled --data $(DATA) --out landmark_data/profiled \
 		--per-photo 6 --aflw 300
 
 test: $(STAMP)

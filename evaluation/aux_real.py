@@ -1,19 +1,19 @@
 """The auxiliary networks N, P, L, R on real faces:
 ``python -m evaluation.aux_real --data gar_data/real64.npz --report reports/aux_real.json``.
 
-- **Held-out crops of the pack** (:func:`neural.auxnets.metrics.real_metrics`): N's mean angle
+- **Held-out crops of the pack** (:func:`neural.gar.auxnets.metrics.real_metrics`): N's mean angle
   (degrees) to the fits' normal maps on face pixels, P's IoU with the fits' masks, L's error
   (px at the pack's resolution, and NME by the outer-eye-corner distance) against the pack's
   landmarks, separately for ground-truth (300-W) and detected landmarks. The fits' labels are
   not ground truth (a smooth 3DMM face without hair, eyes or mouth interior).
 - **AFLW2000-3D** (``--root``/aflw2000, research use only, an evaluation set: never trained
   on): each photo aligned from its ground-truth 68 points (``pts68_3d``;
-  :func:`neural.data.align_image`), L's landmarks mapped back to the photo, 68-point NME by
+  :func:`neural.gar.data.align_image`), L's landmarks mapped back to the photo, 68-point NME by
   the ground-truth box sqrt(w h) per |yaw| bin and their mean (the dataset README's
   protocol, :mod:`evaluation.bench_alignment`); also over the landmarks the SFM defines (the
   ones synthetic training labels). Aligning from the ground truth makes this a test of L on a
   well-framed crop, not of a detector.
-- **Synthetic held-out renders** (:func:`neural.auxnets.metrics.synthetic_metrics`, the
+- **Synthetic held-out renders** (:func:`neural.gar.auxnets.metrics.synthetic_metrics`, the
   committed networks' validation: identities from the pool of 200 of their run for N, P, L).
 - **R on the London set** (CC BY 4.0): same/different-person verification AUC over the
   people whose neutral and smiling photos are both in the pack (aligned crops), for all of
@@ -49,7 +49,7 @@ def aflw2000_landmarks(L, root, resolution: int = 64, n: int | None = None, mode
     from PIL import Image
 
     from morphable import load_model
-    from neural.data import alignment, align_image
+    from neural.gar.data import alignment, align_image
 
     from .bench_alignment import box_size, load_aflw2000, nme, yaw_table
 
@@ -74,11 +74,11 @@ def aflw2000_landmarks(L, root, resolution: int = 64, n: int | None = None, mode
 def london_identity(R, pack, root, dlib: bool = True) -> dict:
     """R and dlib's descriptor on the London people of ``pack`` with both photos (see the
     module docstring): ``{"R", "dlib_crops", "dlib_photos"}`` each ``{"all", "held_out"}`` of
-    :func:`neural.auxnets.metrics.verification_auc`."""
+    :func:`neural.gar.auxnets.metrics.verification_auc`."""
     import torch.nn.functional as F
 
-    from neural.auxnets.metrics import pair_rows, verification_auc
-    from neural.real_faces import RealFaces
+    from neural.gar.auxnets.metrics import pair_rows, verification_auc
+    from neural.gar.real_faces import RealFaces
 
     from .face_descriptor import aligned_descriptors, photo_descriptors
 
@@ -114,10 +114,10 @@ def london_identity(R, pack, root, dlib: bool = True) -> dict:
 def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib=True,
              synthetic_n: int = 32) -> dict:
     """The report of :func:`main` (see the module docstring)."""
-    from neural.auxnets import NAMES, load_aux
-    from neural.auxnets.metrics import real_metrics, synthetic_metrics
-    from neural.data import SyntheticFaces
-    from neural.real_faces import RealFaces
+    from neural.gar.auxnets import NAMES, load_aux
+    from neural.gar.auxnets.metrics import real_metrics, synthetic_metrics
+    from neural.faces.renders import SyntheticFaces
+    from neural.gar.real_faces import RealFaces
 
     from .bench_alignment import data_root
 
@@ -157,7 +157,7 @@ def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib=True,
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m evaluation.aux_real",
                                 description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, help="the real pack (neural.real_faces)")
+    p.add_argument("--data", required=True, help="the real pack (neural.gar.real_faces)")
     p.add_argument("--report", required=True, help="output JSON")
     p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/weights)")
     p.add_argument("--root", help="the shared data folder (default: $MORPHABLE_DATA or ../shared/data)")

@@ -66,7 +66,7 @@ __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "re
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh", "ours")
 NETWORK_METHODS = ("network", "ours-network", "fused", "ours-fused")
 """The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
-:mod:`neural.landmark_detector`), the same fused with the face mesh's; chosen by name, not run
+:mod:`neural.landmarks.detector`), the same fused with the face mesh's; chosen by name, not run
 by default."""
 
 

@@ -59,7 +59,7 @@ def rule(name: str):
 def _readings(d: dict) -> list:
     """(network, face mesh or None) Detections of each held-out face, in its pack's box."""
     from morphable.detection import detect
-    from neural.landmark_detector import extent_box
+    from neural.landmarks.detector import extent_box
 
     out = []
     for img, box in zip(d["images"], extent_box(d["boxes"])):
@@ -83,7 +83,7 @@ def _fitted68(model, found, size) -> np.ndarray:
 def _packs(args) -> dict:
     from morphable import load_model
     from morphable.detection import fusion
-    from neural.landmark_set import BOX_SCALE, box_side
+    from neural.faces.points import BOX_SCALE, box_side
 
     from .bench_alignment import yaw_table
     from .bench_network import PACKS, held_out

@@ -2,7 +2,7 @@
 autocast, with and without channels-last, side by side in one process (the CPU recipe's
 choice of precision, docs/landmark_net.md).
 
-Each setting: the default :class:`neural.landmark_net.LandmarkConfig` network, random
+Each setting: the default :class:`neural.landmarks.network.LandmarkConfig` network, random
 batches of ``--batch-size`` 128-px crops (the batch drawing is not timed), one warm-up step,
 then ``--steps`` AdamW steps on the Gaussian NLL; images/s = batch x steps / process CPU
 seconds x threads (CPU seconds, not wall: other jobs on a shared machine slow the wall clock
@@ -28,7 +28,7 @@ def time_setting(amp: str, channels_last: bool, steps: int, batch_size: int, thr
                  widths=None, blocks=None) -> dict:
     import torch
 
-    from neural.landmark_net import LandmarkConfig, LandmarkNet, gaussian_nll
+    from neural.landmarks.network import LandmarkConfig, LandmarkNet, gaussian_nll
 
     torch.manual_seed(0)
     torch.set_num_threads(threads)

@@ -6,7 +6,7 @@ trainer holds out, each framed by its pack's face box: the last 256 faces of the
 SFM pack (exact labels), the annotated pack's validation split (AFLW's own sparse 2D
 annotations of visible points, 4-16 of the 68) and the profiled pack's (its 3D-convention
 fit, 66 points). Error: mean distance of the labelled 68 points / the 68 points' extent (the
-face box side / :data:`neural.landmark_set.BOX_SCALE`), %, per |yaw| bin, their mean and the
+face box side / :data:`neural.faces.points.BOX_SCALE`), %, per |yaw| bin, their mean and the
 mean over all faces; calibration: the mean of d² / (2σ²) over the labelled points (1 when the
 network's σ is right).
 
@@ -54,12 +54,12 @@ def _option(passes, mirror) -> str:
 
 
 def held_out(packs: Path, hold_out: int = 256) -> dict:
-    """The trainer's held-out faces (:func:`neural.train_landmarks.load_sources`) of the packs
+    """The trainer's held-out faces (:func:`neural.landmarks.train.load_sources`) of the packs
     under ``packs`` that exist (InputError when none does): name ->
     dict of ``images`` (N, H, W, 3) uint8, ``points`` (N, 68, 2) px (NaN unlabelled),
     ``boxes`` (N, 4) framing px, ``yaw_deg`` (N,)."""
-    from neural.landmark_data import load_source
-    from neural.landmark_set import IBUG_ROWS
+    from neural.landmarks.data import load_source
+    from neural.faces.points import IBUG_ROWS
 
     out = {}
     for name, kind, sub in (("synthetic SFM", "synthetic", "synthetic_sfm160"),
@@ -79,8 +79,8 @@ def held_out(packs: Path, hold_out: int = 256) -> dict:
 
 
 def _validation(args) -> None:
-    from neural.landmark_detector import NetworkDetector, extent_box
-    from neural.landmark_set import BOX_SCALE, box_side
+    from neural.landmarks.detector import NetworkDetector, extent_box
+    from neural.faces.points import BOX_SCALE, box_side
 
     detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
     for name, d in held_out(Path(args.packs)).items():
@@ -133,7 +133,7 @@ def bias_table(pred, gt, norm, yaw_deg) -> str:
 
 def _aflw2000(args) -> None:
     from morphable.detection.images import read_image
-    from neural.landmark_detector import MIRROR, PASSES, NetworkDetector
+    from neural.landmarks.detector import MIRROR, PASSES, NetworkDetector
 
     from .bench_alignment import box_size, data_root, dataset_boxes, load_aflw2000, nme
 

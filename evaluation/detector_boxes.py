@@ -1,9 +1,9 @@
 """How each face detector's box sits on the landmark network's framing: the numbers of
-:data:`neural.landmark_detector.BOX_FRAMING`.
+:data:`neural.landmarks.detector.BOX_FRAMING`.
 
 For AFLW2000-3D photos (research use only), each face detector's largest box
 ``(cx, cy, side)`` (side: the mean of width and height) against the framing the network was
-trained on, :func:`neural.landmark_set.face_box` of the photo's 68 points (3D convention):
+trained on, :func:`neural.faces.points.face_box` of the photo's 68 points (3D convention):
 the medians of ``framing side / side`` and of the centre offset ``/ side``, and how many faces
 the detector found. Photos ``--start`` to ``--start + --n`` (the default leaves out the first
 100, on which the detector is measured).
@@ -32,7 +32,7 @@ def framing_of(boxes, framing) -> np.ndarray:
 def main(argv=None) -> int:
     from morphable.detection import detect_faces
     from morphable.detection.images import read_image
-    from neural.landmark_set import face_box
+    from neural.faces.points import face_box
 
     from .bench_alignment import data_root, load_aflw2000
 

@@ -1,7 +1,7 @@
 """dlib's 128-D face descriptor (``dlib.face_recognition_model_v1``, the ResNet of the
 ``face-recognition-models`` package) on aligned crops and on photos.
 
-- :func:`aligned_descriptors`: crops in our FFHQ-style framing (:func:`neural.data.template`),
+- :func:`aligned_descriptors`: crops in our FFHQ-style framing (:func:`neural.faces.renders.template`),
   e.g. GAR samples or a pack's images. No detection: dlib's five alignment points (outer and
   inner eye corners, the base of the nose: iBUG 46, 43, 37, 40, 34) are where the framing puts
   the mean face's landmarks, and dlib cuts its own 150 px chip around them from the crop
@@ -58,7 +58,7 @@ def aligned_descriptors(images, model: str = "sfm", batch_size: int = 64) -> np.
     import dlib
     from PIL import Image
 
-    from neural.data import template
+    from neural.faces.renders import template
 
     imgs = as_uint8_images(images)
     N, R = imgs.shape[:2]

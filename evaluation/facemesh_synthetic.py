@@ -2,12 +2,12 @@
 must beat) and the landmark network (``--methods facemesh network``).
 
 Faces: ``--n`` (300) random SFM faces at ``--resolution`` (256) px drawn by
-:class:`neural.synthetic.SyntheticEngine` with its pose (yaw +-90, pitch +-40, roll +-30
+:class:`neural.faces.synthetic.SyntheticEngine` with its pose (yaw +-90, pitch +-40, roll +-30
 degrees), light, occluder and degradation ranges; face ``k`` is drawn from the seed
 ``[seed, k]`` (``--seed`` 1000: not a seed a training pack built with ``--seed 0`` uses for its
 first faces). Textures: :data:`VALIDATION_TEXTURES` London photos (CC BY 4.0) taken from the end
 of the sorted list, so that no texture's person is among the 16 first photos a training pack
-dresses its faces in (``neural.build_synthetic --textures 16``); backgrounds: 300-W patches
+dresses its faces in (``neural.faces.build_synthetic --textures 16``); backgrounds: 300-W patches
 (research use only), as a training pack's.
 
 Detector: mediapipe's face mesh mapped to iBUG-68 as :mod:`evaluation.bench_alignment` runs it
@@ -53,10 +53,10 @@ VALIDATION_SEED = 1000
 
 def validation_engine(data, model: str = "sfm", resolution: int = 256, textures: int = VALIDATION_TEXTURES,
                       cache=None):
-    """The :class:`neural.synthetic.SyntheticEngine` of the validation set: London textures
+    """The :class:`neural.faces.synthetic.SyntheticEngine` of the validation set: London textures
     from the end of the list, 300-W background patches (seed 0), the engine's default ranges."""
-    from neural.synthetic import (SyntheticEngine, background_bank, london_photos, texture_bank,
-                                  w300_photos)
+    from neural.faces.synthetic import (SyntheticEngine, background_bank, london_photos,
+        texture_bank, w300_photos)
 
     photos = london_photos(data)
     bg_photos = w300_photos(data)
@@ -74,7 +74,7 @@ def validation_faces(engine, n: int, seed: int = VALIDATION_SEED) -> dict:
     camera's focal length, ``visible68``, ``defined68`` (n, 68) bool, ``yaw_deg`` (n,),
     ``light`` (n,) str."""
     from morphable.labels import project_labels
-    from neural.synthetic import VIEW_OFFSET_MM
+    from neural.faces.synthetic import VIEW_OFFSET_MM
 
     m = engine.model
     faces = [engine.sample(np.random.default_rng([seed, k])) for k in range(n)]
@@ -182,7 +182,7 @@ def _row(sel, s) -> dict:
 
 def tables(faces, s) -> dict:
     """Rows by |yaw| bin and by light kind, and over all faces."""
-    from neural.synthetic import LIGHTS
+    from neural.faces.synthetic import LIGHTS
 
     a = np.abs(faces["yaw_deg"])
     by_yaw = {f"{lo}-{hi}": _row((a <= hi) & ((a > lo) if lo > 0 else True), s)

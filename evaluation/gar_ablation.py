@@ -17,7 +17,7 @@ Variants (paper Table 3 style):
   without a V of their own, e.g. two runs compared at the same step).
 
 Each face: random SFM identity, expression, pose, procedural albedo, light and background
-(:class:`neural.data.SyntheticFaces`, another seed than training), rendered at
+(:class:`neural.faces.renders.SyntheticFaces`, another seed than training), rendered at
 ``--image-size`` px. Metrics per variant, averaged over the faces: ``vertex_mm`` (mean
 distance between the recovered and true meshes in the model frame), ``normal_deg`` (mean
 angle between their vertex normals), ``s_per_image``; ``curves``: the vertex error against
@@ -42,7 +42,7 @@ __all__ = ["held_out_faces", "geometry_errors", "run_ablation", "plot_curves", "
 
 def held_out_faces(n: int, image_size: int = 256, seed: int = 12345):
     """n dicts: ``image`` (S, S, 3) [0, 1], ``landmarks`` (68, 2) px, ``vertices`` (V, 3) mm."""
-    from neural.data import SyntheticFaces
+    from neural.faces.renders import SyntheticFaces
 
     faces = SyntheticFaces(resolution=image_size)
     rng = np.random.default_rng(seed)
@@ -76,9 +76,9 @@ def run_ablation(faces, model, *, steps=60, generator=None, generator_n0="auto",
                  landmark_noise=1.0, seed=0, progress=True) -> dict:
     from morphable.fitting import fit_landmarks
     from morphable.refinement import NO_PHOTOMETRIC, refine
-    from neural.checkpoint import default_inverter_path, default_no_norm_cycle_path
-    from neural.inverter import inverter_from
-    from neural.gar_renderer import GARRenderer
+    from neural.gar.paths import default_inverter_path, default_no_norm_cycle_path
+    from neural.gar.inverter import inverter_from
+    from neural.gar.renderer import GARRenderer
 
     rng = np.random.default_rng(seed)
     inv = default_inverter_path() if inverter == "auto" else inverter

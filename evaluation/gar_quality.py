@@ -19,7 +19,7 @@ Lambertian renderer — the synthetic renders themselves):
   of a user-supplied Inception-v3 TorchScript file (e.g. the ``pt_inception-2015-12-05``
   network that clean-fid and torch-fidelity download), images resized to 299 px.
 
-With ``--data PACK`` (a :mod:`neural.real_faces` pack) the faces are the pack's held-out real
+With ``--data PACK`` (a :mod:`neural.gar.real_faces` pack) the faces are the pack's held-out real
 photos instead: the normal maps are their fits', the second view is another photo of the
 person or the mirror image, and the reference images of ``fid_aux`` / ``face_fd`` are the
 photos of one half of the held-out split while every renderer draws the other half's normal
@@ -44,8 +44,9 @@ import torch
 
 from morphable.errors import InputError, MorphableError, one_line_errors
 from morphable.logs import add_verbosity_arguments, configure, verbosity
-from neural.auxnets import NAMES, load_aux
-from neural.checkpoint import GENERATOR_FILE, default_no_norm_cycle_path, load_generator
+from neural.gar.auxnets import NAMES, load_aux
+from neural.gar.paths import GENERATOR_FILE, default_no_norm_cycle_path
+from neural.gar.networks import load_generator
 
 __all__ = ["normal_consistency", "landmark_consistency", "lambert", "synthetic_faces", "real_faces",
            "identity_consistency", "frechet_distance", "face_fd", "sample_grid", "load_inception",
@@ -157,7 +158,7 @@ def inception_features(net, images, batch_size: int = 16) -> np.ndarray:
 def sample_grid(G, normals, path, n_latents: int = 6, seed: int = 0) -> Path:
     """The paper's Figure-3 layout: a row per normal map of ``normals`` (F, 3, R, R), the map
     then ``G`` under the same ``n_latents`` latents (and noise) in every row; a PNG."""
-    from neural.train import normal_to_rgb, save_grid
+    from neural.gar.train import normal_to_rgb, save_grid
 
     gen = torch.Generator().manual_seed(seed)
     z = torch.randn(n_latents, G.config.z_dim, generator=gen)
@@ -190,7 +191,7 @@ def synthetic_faces(config, n_faces: int, seed: int, batch_size: int = 16) -> tu
     """Held-out synthetic faces: (``faces`` {normals, normals_b (B, 3, R, R)}, baselines
     {"classical": (images, images_b)}, reference images for the Frechet distances, the
     landmark ids the 3DMM defines)."""
-    from neural.data import SyntheticFaces
+    from neural.faces.renders import SyntheticFaces
 
     data = SyntheticFaces.from_config(config)
     batches = [data.sample(min(batch_size, n_faces - i), rng=[seed, i], pair=True)
@@ -208,7 +209,7 @@ def real_faces(data, n_faces: int, seed: int, model: str = "sfm") -> tuple:
     first half of the split is the reference, the faces are up to ``n_faces`` of the
     other half, the baselines are those photos and the :func:`lambert` renders of their fits."""
     from morphable import load_model
-    from neural.real_faces import RealFaces
+    from neural.gar.real_faces import RealFaces
 
     test = RealFaces(data, split="test", flip=False)
     rng = np.random.default_rng(seed)
@@ -239,7 +240,7 @@ def evaluate(generators: dict, aux: dict, n_faces: int = 64, n_latents: int = 8,
     renders are area-downsampled to R. The aux networks' metrics see images and normal maps
     area-downsampled to ``aux_size`` px (default R; 64 for the 64-px aux networks judging
     128-px faces)."""
-    from neural.losses import area_downsample
+    from neural.gar.losses import area_downsample
 
     cfg = next(iter(generators.values())).config
     if data is None:
@@ -322,9 +323,9 @@ def main(argv=None) -> int:
                    help="checkpoints: evaluate the raw generator, not its moving average")
     p.add_argument("--faces", type=int, default=64,
                    help="held-out faces (with --data: at most half the pack's test split)")
-    p.add_argument("--data", help="a neural.real_faces pack: measure on its held-out photos")
+    p.add_argument("--data", help="a neural.gar.real_faces pack: measure on its held-out photos")
     p.add_argument("--baseline", action="append", default=[], metavar="NAME=PATH",
-                   help="another generator to report beside gar, e.g. gar_synthetic=neural/weights/gar_tiny.pt")
+                   help="another generator to report beside gar, e.g. gar_synthetic=neural/gar/weights/gar_tiny.pt")
     p.add_argument("--seed", type=int, default=12345)
     add_verbosity_arguments(p)
     args = p.parse_args(argv)

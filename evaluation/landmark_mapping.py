@@ -6,7 +6,7 @@ projected rows (mean distance over the outer brow corners' distance): the neares
 for the nose's sides and the mouth's centre the iBUG row of that name last.
 
 ``residuals``: ``--n`` random photos per set fitted as the packs fit them
-(:func:`neural.annotations.fit_item`): the RMS residual over the face box's side (percentiles)
+(:func:`neural.faces.annotations.fit_item`): the RMS residual over the face box's side (percentiles)
 and, where the set gives a yaw, its correlation with the fit's.
 
     python -m evaluation.landmark_mapping rows --n 300
@@ -33,7 +33,7 @@ def nearest_rows(data, n: int = 300, top: int = 4) -> dict:
     """AFLW point -> its ``top`` nearest rows ``[row, mean normalised distance]`` over the
     first ``n`` frontal crops with all base points (see the module's notes)."""
     import morphable
-    from neural.annotations import AFLW21_ROWS, model_points, row_scheme, set_items
+    from neural.faces.annotations import AFLW21_ROWS, model_points, row_scheme, set_items
     from morphable.fitting import fit_landmarks
 
     model = morphable.load_model("sfm")
@@ -70,8 +70,8 @@ def residuals(data, n: int = 150, seed: int = 0) -> dict:
     the share above the bound, the yaw correlation where the set has a yaw."""
     import morphable
     from morphable.detection.images import read_image
-    from neural.annotations import MAX_RESIDUAL, SETS, fit_item, set_items
-    from neural.landmark_set import IBUG_ROWS, face_box
+    from neural.faces.annotations import MAX_RESIDUAL, SETS, fit_item, set_items
+    from neural.faces.points import IBUG_ROWS, face_box
 
     model = morphable.load_model("sfm")
     out = {}

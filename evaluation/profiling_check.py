@@ -13,7 +13,7 @@ project) are compared with the profiling labels over the 66 points SFM defines: 
 and NME by sqrt(w h) of the labels' box; a profiled picture where the face mesh finds no face
 is a failure.
 
-``pack``: ``--n`` random faces of a profiled landmark pack (:mod:`neural.build_profiled`),
+``pack``: ``--n`` random faces of a profiled landmark pack (:mod:`neural.faces.build_profiled`),
 the same second fit on each crop against its labels' 68 iBUG rows, by |yaw| bin of the
 labels' pose. Commands::
 
@@ -108,8 +108,8 @@ def pack_refit(pack, n: int = 60, seed: int = 0, bins=(0, 30, 60, 90)) -> dict:
     labels' pose (the last bin open-ended): faces, no face found, mean px error (crop px) and
     NME %."""
     import morphable
-    from neural.landmark_pack import load_pack
-    from neural.landmark_set import IBUG_ROWS
+    from neural.faces.packs import load_pack
+    from neural.faces.points import IBUG_ROWS
 
     d = load_pack(pack)
     pick = np.sort(np.random.default_rng(seed).choice(len(d["split"]), min(n, len(d["split"])),
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("what", choices=("grid", "refit", "pack"))
-    p.add_argument("--pack", help="pack: a profiled landmark pack (neural.build_profiled)")
+    p.add_argument("--pack", help="pack: a profiled landmark pack (neural.faces.build_profiled)")
     p.add_argument("--data", default=None, help="shared data folder (default ../shared/data)")
     p.add_argument("--n", type=int, default=5, help="London photos (refit; grid: 2 with image_0010)")
     p.add_argument("--yaws", type=float, nargs="+", help="turns, degrees (grid default -90 ... 90 "

@@ -1,32 +1,28 @@
-"""The neural plugin of morphable: the Generative Adversarial Renderer (GAR).
+"""The neural plugin of morphable: learned networks that reach the core only through entry
+points.
 
-``G(n, z, eps)`` renders a face image from a camera-frame normal map ``n`` and a latent
-code ``z`` (plus per-layer noise ``eps``), after "Inverting Generative Adversarial Renderer
-for Face Reconstruction" (Piao et al., CVPR 2021). Modules:
+Three products, each a subpackage, over a thin shared layer:
 
-- :mod:`neural.config` — the ``tiny`` (64 px, 2 CPU cores) and ``base`` (256 px, GPU) configs;
-- :mod:`neural.gar` — mapping network, modulated convolutions, Normal Injection, generator,
-  residual discriminator;
-- :mod:`neural.losses` — L_n, L_ldmk, L_id, L_adv (non-saturating) with R1, weighted total;
-- :mod:`neural.auxnets` — the frozen auxiliary networks N (normals), P (face mask),
-  L (landmarks), R (identity), their loader and ``python -m neural.auxnets.train``;
-- :mod:`neural.data` — synthetic renders with exact labels, aligned image folders;
-- :mod:`neural.real_faces` — the packed real-photo set (aligned crops with their fits' normal
-  maps, masks and landmarks) and its batches;
-- :mod:`neural.train` — ``python -m neural.train --config tiny --out runs/tiny``;
-- :mod:`neural.checkpoint` — the committed weights' default paths, loading a network or
-  the generator from a checkpoint file, one-line errors;
-- :mod:`neural.gar_renderer` — ``GARRenderer``, the ``gar`` plugin of :mod:`morphable.renderer_plugins`,
-  with its inversion hooks (z from V);
-- :mod:`neural.inverter` — the inverting network V (image -> latent ``z``), its loss and files;
-- :mod:`neural.train_inverter` — ``python -m neural.train_inverter``: V against a frozen GAR.
+- :mod:`neural.gar` — the Generative Adversarial Renderer ``G(n, z, eps)`` of "Inverting
+  Generative Adversarial Renderer for Face Reconstruction" (Piao et al., CVPR 2021): the
+  generator with its Normal Injection, the losses, the auxiliary networks, the inverter V,
+  their data and training, and the ``gar`` renderer plugin (entry point
+  ``morphable.renderers``);
+- :mod:`neural.landmarks` — our landmark network (546 surface points with a σ each and a face
+  score): the network, its training batches and training, the face score's refit, and the
+  ``network`` detector plugin (entry point ``morphable.landmark_detectors``);
+- :mod:`neural.faces` — the face data engine: the point set every pack is labelled in,
+  synthetic faces with exact labels, real photos' annotations, the packs and their builders.
 
-Reconstruction by inverting a renderer and editing are the core's
-(:mod:`morphable.refinement`); the GAR's quality report and ablations are evaluation
-(:mod:`evaluation.gar_quality`, :mod:`evaluation.gar_ablation`).
+Shared by every network: :mod:`neural.training` (the loop, checkpoints with resume, logs),
+:mod:`neural.checkpoint` (loading a network from a file with one-line errors),
+:mod:`neural.augment` (differentiable augmentation) and :mod:`neural.gpu_recipe` (one
+command that trains on a lent GPU within a time budget).
+
+Imports point downwards: ``gar`` and ``landmarks`` use ``faces`` and the shared layer,
+``faces`` only the shared layer and :mod:`morphable`. Reconstruction by inverting a renderer
+is the core's (:mod:`morphable.refinement`); the benchmarks are :mod:`evaluation`'s.
 
 This package needs torch (``pip install morphable[neural]``); ``morphable`` itself never
-imports it: it finds the renderer through the ``morphable.renderers`` entry point. Images
-are (B, 3, H, W) float tensors in [-1, 1]; normal maps are (B, 3, H, W) unit vectors in
-the camera frame (x right, y up, z towards the viewer) and zero outside the face.
+imports it.
 """

@@ -5,7 +5,7 @@ and leaves their weights, logs and one JSON summary in an output folder.
 [--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``);
 ``python -m neural.gpu_recipe landmarks --synthetic PACK [PACK ...] [--annotated PACK]
 [--profiled PACK] --out OUT --minutes 8`` (the landmark network,
-:mod:`neural.train_landmarks` with its ``gpu`` recipe: ``landmarks_gpu.pt``, its
+:mod:`neural.landmarks.train` with its ``gpu`` recipe: ``landmarks_gpu.pt``, its
 ``validation.jsonl`` as ``validation_landmarks.jsonl``, ``recipe.json``, ``log.txt``).
 
 A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
@@ -61,7 +61,7 @@ def _job(name, module, args, minutes, outputs, run_dir):
 
 def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.0,
                device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
-               aux_dir: str = "neural/weights/real") -> list:
+               aux_dir: str = "neural/gar/weights/real") -> list:
     """The GAR's stages: [[tiny-gpu, tiny128-gpu, tiny-gpu with lambda_n = 0], [the first
     two's inverters]] (see the module); ``max_steps``, ``batch_size`` and ``overrides``
     (``KEY=VALUE`` config fields of every GAR, e.g. smaller widths) shrink it for a test."""
@@ -72,7 +72,7 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
     stages = [[], []]
     for name, config, extra, stem in gars:
         gdir = Path(run_dir) / name
-        stages[0].append(_job(name, "neural.train", [
+        stages[0].append(_job(name, "neural.gar.train", [
             "--config", config, "--data", data, "--aux-dir", aux_dir, "--set",
             *overrides, *extra, "--out", gdir, "--device", device, "--amp",
             "bf16" if device != "cpu" else "none", "--channels-last", "--steps", 10**6,
@@ -81,7 +81,7 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
         if extra:
             continue
         tag = stem[4:]
-        stages[1].append(_job(f"inv{tag}", "neural.train_inverter", [
+        stages[1].append(_job(f"inv{tag}", "neural.gar.train_inverter", [
             "--generator", gdir / "generator.pt", "--data", data, "--out",
             Path(run_dir) / f"inv{tag}", "--device", device, "--batch-size", batch_size or 64,
             "--pool", 2048, "--held-out", 64, "--steps", max_steps or 10**6, "--max-minutes",
@@ -93,7 +93,7 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
 
 def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
                     device: str = "cuda", max_steps=None, batch_size=None, overrides=()) -> list:
-    """The landmark network's one stage: :mod:`neural.train_landmarks` ``--recipe gpu`` on
+    """The landmark network's one stage: :mod:`neural.landmarks.train` ``--recipe gpu`` on
     the packs, for ``minutes`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
     packs = (["--synthetic", *synthetic] if synthetic else [])
     packs += ["--annotated", annotated] if annotated else []
@@ -101,7 +101,7 @@ def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minute
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
     folder = Path(run_dir) / "landmarks"
-    return [[_job("landmarks", "neural.train_landmarks", [
+    return [[_job("landmarks", "neural.landmarks.train", [
         "--recipe", "gpu", *packs, "--out", folder, "--device", device,
         "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit,
         *(["--set", *overrides] if overrides else [])], minutes,
@@ -195,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m neural.gpu_recipe",
                                 description=__doc__.splitlines()[0])
     p.add_argument("recipe", choices=sorted(RECIPES))
-    p.add_argument("--data", help="gar: the training pack (neural.real_faces)")
+    p.add_argument("--data", help="gar: the training pack (neural.gar.real_faces)")
     p.add_argument("--synthetic", nargs="*", default=[], metavar="PACK",
                    help="landmarks: synthetic packs")
     p.add_argument("--annotated", metavar="PACK", help="landmarks: the annotated pack")
@@ -231,7 +231,7 @@ def main(argv=None) -> int:
         missing = next((p for p in packs if p is not None and not Path(p).exists()), None)
         if missing is not None or not any(packs):
             raise InputError(f"{missing or '--synthetic'}: landmark pack not found (build the "
-                             "packs with `make landmark-data` and neural.build_synthetic)")
+                             "packs with `make landmark-data` and neural.faces.build_synthetic)")
         stages = landmark_recipe(args.runs, args.synthetic, args.annotated, args.profiled,
                                  minutes=args.minutes or 8.0, **common)
     report = run_recipe(stages, args.out)

@@ -1,7 +1,7 @@
 """The training machinery every network of the plugin shares: device and mixed precision,
 atomic checkpoints with resume, the loop with its time and step budgets, ``log.jsonl`` and
-``summary.json``. The GAR (:class:`neural.train.Trainer`) and the landmark network
-(:class:`neural.train_landmarks.LandmarkTrainer`) subclass :class:`TrainingRun` and supply
+``summary.json``. The GAR (:class:`neural.gar.train.Trainer`) and the landmark network
+(:class:`neural.landmarks.train.LandmarkTrainer`) subclass :class:`TrainingRun` and supply
 their networks, their batches and one step; the GPU recipe (:mod:`neural.gpu_recipe`) runs
 either through its command line.
 

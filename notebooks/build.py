@@ -220,17 +220,17 @@ background). This notebook samples images, edits the geometry with the appearanc
 inverts the renderer for a latent code, and reconstructs and edits a real photo.
 
 **Weights.** The generator is looked up in `$MORPHABLE_GAR_WEIGHTS`, then the committed
-`neural/weights/gar_tiny.pt` (model card: `neural/weights/MODEL_CARD.md`), then
-`runs/tiny/generator.pt` (written by `python -m neural.train --config tiny --out runs/tiny`).
+`neural/gar/weights/gar_tiny.pt` (model card: `neural/gar/weights/MODEL_CARD.md`), then
+`runs/tiny/generator.pt` (written by `python -m neural.gar.train --config tiny --out runs/tiny`).
 Without any, the generator below is **untrained**: the images are then structured noise shaped
 by the normal maps — the cells show the mechanics, not the quality of a trained model."""),
         new_code_cell(SETUP + '''
 
 import torch
 
-from neural.checkpoint import default_generator_path, load_generator
-from neural.config import get_config
-from neural.gar import Generator
+from neural.gar.config import get_config
+from neural.gar.networks import Generator, load_generator
+from neural.gar.paths import default_generator_path
 
 torch.manual_seed(0)
 # the first generator found: $MORPHABLE_GAR_WEIGHTS or the committed weights, then a run
@@ -366,7 +366,7 @@ assert np.isfinite(turned).all() and np.abs(turned - state.rendered).mean() > 1e
 ## Next
 
 ```
-python -m neural.train --config tiny --out runs/tiny            # train your own, then rerun
+python -m neural.gar.train --config tiny --out runs/tiny            # train your own, then rerun
 python -m evaluation.gar_quality --report reports/gar.json --generator runs/tiny/generator.pt
 python -m evaluation.gar_ablation --report ablate.json          # the reconstruction ablations
 ```"""),

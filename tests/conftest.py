@@ -30,12 +30,12 @@ def ict():
 
 def make_tiny_pack(path, n: int = 8, resolution: int = 16, seed: int = 0, person=None,
                    held_out=None):
-    """A neural.real_faces pack of ``n`` synthetic SFM renders standing in for real photos in
+    """A neural.gar.real_faces pack of ``n`` synthetic SFM renders standing in for real photos in
     tests (default: two photos per person, every fourth person held out); returns the path."""
     import numpy as np
 
-    from neural.data import SyntheticFaces
-    from neural.real_faces import save_pack
+    from neural.faces.renders import SyntheticFaces
+    from neural.gar.real_faces import save_pack
 
     faces = SyntheticFaces(resolution=resolution)
     rng = np.random.default_rng(seed)

@@ -7,15 +7,14 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural.auxnets import build_aux, save_aux  # noqa: E402
-from neural.auxnets.metrics import (landmark_errors, pair_rows, real_metrics,  # noqa: E402
-                                    verification_auc)
-from neural.real_faces import RealFaces, save_pack  # noqa: E402
+from neural.gar.auxnets import build_aux, save_aux  # noqa: E402
+from neural.gar.auxnets.metrics import landmark_errors, pair_rows, real_metrics, verification_auc
+from neural.gar.real_faces import RealFaces, save_pack  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def renders():
-    from neural.data import SyntheticFaces
+    from neural.faces.renders import SyntheticFaces
 
     return SyntheticFaces(resolution=32).sample(12, rng=3)
 
@@ -62,7 +61,7 @@ def test_verification_auc_and_landmark_errors():
 
 
 def test_pair_rows_and_real_metrics(pack, aux_dir):
-    from neural.auxnets import load_aux
+    from neural.gar.auxnets import load_aux
 
     faces = RealFaces(pack, split="test", flip=False)
     rows = pair_rows(faces)
@@ -98,7 +97,7 @@ def test_real_metrics_exact_labels(pack):
 
 
 def test_fine_tune_on_pack(pack, aux_dir, tmp_path):
-    from neural.auxnets.train import AuxTrainer
+    from neural.gar.auxnets.train import AuxTrainer
 
     t = AuxTrainer(batch_size=4, lr=1e-2, nets="NPLR", pack=pack, init=aux_dir,
                    synthetic_share=0.25)
@@ -124,7 +123,7 @@ def test_fine_tune_on_pack(pack, aux_dir, tmp_path):
 
 def test_fine_tune_cli_and_report(pack, aux_dir, tmp_path, data_dir):
     from evaluation.aux_real import main as report_main
-    from neural.auxnets.train import main as train_main
+    from neural.gar.auxnets.train import main as train_main
 
     assert train_main(["--data", str(pack), "--init", str(aux_dir), "--out", str(tmp_path / "ft"),
                        "--nets", "L", "--steps", "2", "--batch-size", "2", "--val-size", "2",
@@ -141,7 +140,8 @@ def test_fine_tune_cli_and_report(pack, aux_dir, tmp_path, data_dir):
 
 
 def test_alignment_maps_landmarks_onto_the_template():
-    from neural.data import alignment, template
+    from neural.gar.data import alignment
+    from neural.faces.renders import template
 
     t = template(64)
     rot = np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])

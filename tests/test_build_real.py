@@ -1,12 +1,12 @@
-"""The real-photo GAR pack (neural.build_real): a small build from ../shared, the alignment's
+"""The real-photo GAR pack (neural.gar.build_real): a small build from ../shared, the alignment's
 camera, the held-out rule."""
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural.build_real import SOURCES, build, held_out, list_photos  # noqa: E402
-from neural.real_faces import REQUIRED_KEYS, load_pack  # noqa: E402
+from neural.gar.build_real import SOURCES, build, held_out, list_photos  # noqa: E402
+from neural.gar.real_faces import REQUIRED_KEYS, load_pack  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_rebuild_at_another_resolution_reuses_the_fits(built, data_dir):
 @pytest.mark.parametrize("kind", ["affine", "perspective"])
 def test_aligned_camera_projects_as_the_warp_maps(kind):
     from morphable.camera import Camera
-    from neural.data import aligned_camera
+    from neural.gar.data import aligned_camera
 
     cam = Camera.looking_at_face((400, 300), yaw=20, pitch=-10, roll=5, kind=kind)
     pts = np.random.default_rng(0).uniform(-60, 60, (20, 3))
@@ -92,7 +92,7 @@ def test_aligned_camera_projects_as_the_warp_maps(kind):
 
 @pytest.mark.parametrize("scale", [0.6, 0.2])
 def test_warp_image_puts_a_photo_point_where_the_similarity_says(scale):
-    from neural.data import warp_image
+    from neural.gar.data import warp_image
 
     photo = np.zeros((300, 400, 3), np.uint8)
     photo[148:153, 198:203] = 255                        # a bright 5 px square at (200, 150)
@@ -107,7 +107,7 @@ def test_warp_image_puts_a_photo_point_where_the_similarity_says(scale):
 
 def test_a_crop_past_the_photo_shows_faded_mirrored_background_not_black():
     from morphable.refinement import pad_like_ffhq
-    from neural.data import warp_image
+    from neural.gar.data import warp_image
 
     rng = np.random.default_rng(0)
     photo = rng.integers(60, 200, size=(120, 120, 3), dtype=np.uint8)

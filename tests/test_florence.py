@@ -579,7 +579,7 @@ def test_error_vs_runtime_report_of_gar(james, sfm, random_gar, monkeypatch):
     assert all(p["s_per_video"] > 0 and abs(p["mean_mm"] - start["mean_mm"]) < 0.5
                for p in gar.values())
     # without the neural plugin: a one-line error before any video is made
-    monkeypatch.setitem(sys.modules, "neural.gar_renderer", None)
+    monkeypatch.setitem(sys.modules, "neural.gar.renderer", None)
     monkeypatch.setattr(report, "video_landmarks", lambda *a, **k: pytest.fail("rendered"))
     with pytest.raises(InputError, match="neural plugin is not installed"):
         report.run(james, sfm, ["ours-independent", "gar"], ["outdoor"], video_frames=6)
@@ -770,8 +770,8 @@ def test_parse_videos():
 def random_gar(tmp_path, monkeypatch):
     """An untrained tiny GAR as the renderer's weights (fast; the committed one is not needed)."""
     torch = pytest.importorskip("torch")
-    from neural.config import get_config
-    from neural.gar import Generator
+    from neural.gar.config import get_config
+    from neural.gar.networks import Generator
 
     torch.manual_seed(0)
     G = Generator(get_config("tiny"))

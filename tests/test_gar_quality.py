@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural.auxnets.nets import soft_argmax  # noqa: E402
+from neural.gar.auxnets.nets import soft_argmax  # noqa: E402
 from evaluation.gar_quality import (frechet_distance, identity_consistency,  # noqa: E402
                                     landmark_consistency, normal_consistency)
 
@@ -65,11 +65,11 @@ def test_landmark_identity_frechet_toy():
 
 def test_report_end_to_end(tmp_path, data_dir):
     pytest.importorskip("open3d")
-    from neural.auxnets import save_aux
-    from neural.auxnets.nets import NETS
-    from neural.config import get_config
+    from neural.gar.auxnets import save_aux
+    from neural.gar.auxnets.nets import NETS
+    from neural.gar.config import get_config
     from evaluation.gar_quality import main
-    from neural.gar import Generator
+    from neural.gar.networks import Generator
 
     cfg = get_config("tiny", resolution=32, channel_base=256, channel_max=32, z_dim=16, w_dim=16)
     torch.manual_seed(0)
@@ -103,9 +103,9 @@ def test_report_end_to_end(tmp_path, data_dir):
 def test_committed_aux_weights_quality(data_dir):
     """The committed N, P, L work on renders they never saw (seeds outside training)."""
     pytest.importorskip("open3d")
-    from neural.auxnets import load_aux
-    from neural.checkpoint import default_aux_path
-    from neural.data import SyntheticFaces
+    from neural.gar.auxnets import load_aux
+    from neural.gar.paths import default_aux_path
+    from neural.faces.renders import SyntheticFaces
 
     if not default_aux_path("N").is_file():
         pytest.skip("no committed aux weights")
@@ -125,9 +125,9 @@ def test_committed_aux_weights_quality(data_dir):
 def test_committed_identity_net_separates_unseen_faces(data_dir):
     """R: two views of one unseen face are closer than views of different faces."""
     pytest.importorskip("open3d")
-    from neural.auxnets import load_aux
-    from neural.checkpoint import default_aux_path
-    from neural.data import SyntheticFaces
+    from neural.gar.auxnets import load_aux
+    from neural.gar.paths import default_aux_path
+    from neural.faces.renders import SyntheticFaces
 
     if not default_aux_path("R").is_file():
         pytest.skip("no committed R weights")
@@ -146,8 +146,9 @@ def test_committed_gar_keeps_geometry_better_than_no_norm_cycle(data_dir):
     training without the normal-consistency loss (the paper's "w/o norm-cycle")."""
     pytest.importorskip("open3d")
     from evaluation.gar_quality import evaluate
-    from neural.auxnets import NAMES, load_aux
-    from neural.checkpoint import default_generator_path, default_no_norm_cycle_path, load_generator
+    from neural.gar.auxnets import NAMES, load_aux
+    from neural.gar.paths import default_generator_path, default_no_norm_cycle_path
+    from neural.gar.networks import load_generator
 
     g, g0 = default_generator_path(), default_no_norm_cycle_path()
     if g is None or g0 is None:
@@ -165,9 +166,9 @@ def test_real_photo_report_has_floors_and_face_fd(pack_maker, tmp_path):
     their floor) and the Lambert renders of the fits; every row has a face-FD."""
     pytest.importorskip("dlib")
     from evaluation.gar_quality import evaluate, lambert
-    from neural.auxnets import NAMES, build_aux
-    from neural.config import get_config
-    from neural.gar import Generator
+    from neural.gar.auxnets import NAMES, build_aux
+    from neural.gar.config import get_config
+    from neural.gar.networks import Generator
 
     pack = pack_maker(tmp_path / "p.npz", n=12, resolution=32, person=np.arange(12),
                       held_out=np.arange(12) >= 4)
@@ -195,9 +196,9 @@ def test_report_compares_generators_of_two_resolutions(pack_maker, tmp_path):
     from PIL import Image
 
     from evaluation.gar_quality import evaluate
-    from neural.auxnets import NAMES, build_aux
-    from neural.config import get_config
-    from neural.gar import Generator
+    from neural.gar.auxnets import NAMES, build_aux
+    from neural.gar.config import get_config
+    from neural.gar.networks import Generator
 
     pack = pack_maker(tmp_path / "p.npz", n=8, resolution=32, person=np.arange(8),
                       held_out=np.arange(8) >= 4)

@@ -1,4 +1,4 @@
-"""The landmark network as a detector (neural.landmark_detector) and the plugin interface of
+"""The landmark network as a detector (neural.landmarks.detector) and the plugin interface of
 morphable.detection: discovery, the "auto" choice, the crop geometry, the failure policy and
 the bad-input table's "landmark network detector" rows. A tiny random network in tmp_path
 stands in for the trained weights."""
@@ -17,14 +17,14 @@ from morphable.errors import FitError, InputError
 torch = pytest.importorskip("torch")
 
 REPO = Path(__file__).resolve().parents[1]
-ENTRY = "neural.landmark_detector:NetworkDetector"
+ENTRY = "neural.landmarks.detector:NetworkDetector"
 
 
 def tiny_net(path, score=5.0, mean_points=None):
     """A tiny LandmarkNet whose outputs do not depend on the crop (the last layer's weights
     are zero): points at ``mean_points`` (546, 2) crop-normalised (default 0), σ 8 crop px,
     face logit ``score``; saved to ``path``."""
-    from neural.landmark_net import LandmarkConfig, LandmarkNet, save_landmark_net
+    from neural.landmarks.network import LandmarkConfig, LandmarkNet, save_landmark_net
 
     net = LandmarkNet(LandmarkConfig(widths=(4, 4, 4, 4, 4), blocks=(0, 0, 0, 0, 0), hidden=8))
     if mean_points is not None:
@@ -81,7 +81,7 @@ def test_entry_point_is_declared_in_setup_cfg():
 
 def test_discovery_loads_the_plugin_only_when_asked(plugin, monkeypatch):
     from morphable.detection import plugins
-    from neural.landmark_detector import NetworkDetector
+    from neural.landmarks.detector import NetworkDetector
 
     assert plugins.installed() == ["network"]
     assert plugins.detector_class("network") is NetworkDetector
@@ -96,12 +96,12 @@ def test_discovery_loads_the_plugin_only_when_asked(plugin, monkeypatch):
 def test_import_and_discovery_pull_no_torch():
     code = ("import sys, morphable, morphable.detection as d; d.plugins.installed(); "
             "d.resolve_detectors('dlib'); "
-            "print(sorted(m for m in ('torch', 'neural', 'neural.landmark_detector') if m in sys.modules))")
+            "print(sorted(m for m in ('torch', 'neural', 'neural.landmarks.detector') if m in sys.modules))")
     # "auto" without mediapipe asks the installed plugin whether it can run: its module, not torch
     code += ("; from importlib import metadata; ep = metadata.EntryPoint('network', "
              f"'{ENTRY}', d.plugins.GROUP); d.plugins.metadata.entry_points = lambda **kw: [ep]; "
              "d._facemesh_installed = lambda: False; "
-             "d.resolve_detectors(); print('torch' in sys.modules, 'neural.landmark_detector' in sys.modules)")
+             "d.resolve_detectors(); print('torch' in sys.modules, 'neural.landmarks.detector' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -237,8 +237,8 @@ def test_network_not_installed_is_one_line(monkeypatch):
 def test_crops_put_each_photo_pixel_where_the_crop_geometry_says():
     """A bright blob at a known photo pixel lands at its crop coordinates (image_to_crop),
     for a box cut at full resolution and one reduced 4 times."""
-    from neural.landmark_detector import crops
-    from neural.landmark_net import crop_theta, image_to_crop, points_in_crop_px
+    from neural.landmarks.detector import crops
+    from neural.landmarks.network import crop_theta, image_to_crop, points_in_crop_px
 
     H, W, R = 1200, 1600, 32
     yy, xx = np.mgrid[:H, :W]
@@ -271,8 +271,8 @@ def test_two_passes_and_the_way_back_round_trip_to_sub_pixel(tmp_path):
     face itself: both passes frame it the same way and the points come back to photo pixels
     (one reading: the template is not its own mirror image);
     σ is 8 crop px times the framing side / 128."""
-    from neural.landmark_detector import NetworkDetector
-    from neural.landmark_set import IBUG_ROWS, face_box
+    from neural.landmarks.detector import NetworkDetector
+    from neural.faces.points import IBUG_ROWS, face_box
 
     P = _face_template()
     F = face_box(P[IBUG_ROWS])
@@ -296,8 +296,8 @@ def test_mirrored_reading_is_put_back_row_for_row_and_sigma_is_not_shrunk():
     """A network that reads a mirrored crop perfectly answers the mirror image of its points:
     merge_mirrored puts them back onto the plain answer exactly; σ is the root mean square of
     the two (2 and 2 -> 2; 3 and 4 -> sqrt(12.5)), the face logits averaged."""
-    from neural.landmark_detector import merge_mirrored
-    from neural.landmark_set import mirror_index
+    from neural.landmarks.detector import merge_mirrored
+    from neural.faces.points import mirror_index
 
     m = torch.as_tensor(mirror_index())
     q = torch.rand(3, 546, 2, dtype=torch.float64) * 2 - 1
@@ -318,8 +318,8 @@ def test_mirrored_reading_is_put_back_row_for_row_and_sigma_is_not_shrunk():
 def test_mirror_option_agrees_with_one_reading_for_a_mirror_symmetric_answer(tmp_path):
     """The detector with mirror=True on a network whose constant answer is its own mirror image
     gives the one reading's points and σ; mirror=False is the default's alternative."""
-    from neural.landmark_detector import NetworkDetector
-    from neural.landmark_set import mirror_index
+    from neural.landmarks.detector import NetworkDetector
+    from neural.faces.points import mirror_index
 
     m = mirror_index()
     q = np.random.default_rng(3).uniform(-0.6, 0.6, (546, 2))
@@ -334,7 +334,7 @@ def test_mirror_option_agrees_with_one_reading_for_a_mirror_symmetric_answer(tmp
 
 
 def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypatch):
-    from neural import landmark_detector as ld
+    from neural.landmarks import detector as ld
 
     det = ld.NetworkDetector(nets["face"])
     img = noise()
@@ -372,7 +372,7 @@ def test_face_detector_boxes_are_framed_and_the_windows_take_over(nets, monkeypa
 
 
 def test_windows_cover_the_photo():
-    from neural.landmark_detector import MIN_BOX_PX, windows
+    from neural.landmarks.detector import MIN_BOX_PX, windows
 
     w = windows(320, 240)
     side = w[:, 2] - w[:, 0]
@@ -416,7 +416,7 @@ ROWS = _rows()
 def test_bad_input_rows(call, message, nets, tmp_path, monkeypatch):
     from morphable.detection import Detection
     from morphable.detection.fusion import fuse
-    from neural.landmark_detector import NetworkDetector
+    from neural.landmarks.detector import NetworkDetector
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "corrupt.pt").write_bytes(np.random.default_rng(0).bytes(2000))
@@ -435,7 +435,7 @@ def test_bad_input_table_has_the_rows():
 
 def test_face_boxes_given_back_frame_the_same_crop(nets, monkeypatch):
     """detect_faces gives boxes in the convention detect(box=) reads: the framing comes back."""
-    from neural import landmark_detector as ld
+    from neural.landmarks import detector as ld
 
     det = ld.NetworkDetector(nets["face"])
     raw = np.array([[100.0, 60.0, 200.0, 170.0]])
@@ -461,7 +461,7 @@ def test_bench_network_validation_table_and_missing_packs(nets, tmp_path, capsys
     """evaluation.bench_network --set validation on a tiny synthetic pack: a table row per
     option with finite errors; a folder without packs is one line, exit 2."""
     from evaluation.bench_network import OPTIONS, main
-    from neural.build_synthetic import build
+    from neural.faces.build_synthetic import build
 
     pytest.importorskip("morphable.raster")
     try:
@@ -505,9 +505,9 @@ def test_bias_table_takes_away_a_shared_offset_but_not_noise():
 
 def test_committed_weights_find_a_face_and_none_in_noise(data_dir):
     # the face score refitted with textures and parts of faces as negatives
-    # (neural.landmark_score): before, the window search called uniform noise a face
+    # (neural.landmarks.score): before, the window search called uniform noise a face
     from morphable.detection.images import read_image
-    from neural.landmark_detector import WEIGHTS_FILE, NetworkDetector
+    from neural.landmarks.detector import WEIGHTS_FILE, NetworkDetector
 
     det = NetworkDetector(WEIGHTS_FILE)
     assert "score_refit" in det.net.meta

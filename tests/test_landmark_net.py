@@ -9,11 +9,11 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from morphable.errors import InputError  # noqa: E402
-from neural.landmark_data import LandmarkSource, draw_batch, validation_batch  # noqa: E402
-from neural.landmark_net import (LandmarkConfig, LandmarkNet, crop_images, crop_theta,  # noqa: E402
-                                 crop_to_image, gaussian_nll, image_to_crop, load_landmark_net,
-                                 points_in_crop_px, save_landmark_net)
-from neural.landmark_set import IBUG_START, N_POINTS, face_box, mirror_index  # noqa: E402
+from neural.landmarks.data import LandmarkSource, draw_batch, validation_batch  # noqa: E402
+from neural.landmarks.network import (LandmarkConfig, LandmarkNet, crop_images, crop_theta,
+    crop_to_image, gaussian_nll, image_to_crop, load_landmark_net, points_in_crop_px,
+    save_landmark_net)
+from neural.faces.points import IBUG_START, N_POINTS, face_box, mirror_index  # noqa: E402
 
 TINY = dict(resolution=32, widths=(8, 8, 8, 8, 8), blocks=(0, 0, 1, 0, 0), hidden=16)
 
@@ -153,7 +153,7 @@ def test_face_box_framing():
 
 
 def _tiny_trainer(tmp_path, **kw):
-    from neural.train_landmarks import LandmarkTrainer
+    from neural.landmarks.train import LandmarkTrainer
 
     cfg = LandmarkConfig(**{**TINY, **kw}, batch_size=4, steps=4, print_every=1,
                          sample_every=2, checkpoint_every=2, mix=(("synthetic", 1.0),))
@@ -183,8 +183,8 @@ def test_trainer_steps_checkpoint_resume(tmp_path):
 def test_script_gpu_recipe_on_cpu_and_bad_packs(tmp_path, capsys):
     """The one script with the GPU recipe's settings, run for two steps on the CPU on a tiny
     synthetic pack: the weights and summary.json it leaves are what a GPU run returns."""
-    from neural.build_synthetic import build
-    from neural.train_landmarks import main
+    from neural.faces.build_synthetic import build
+    from neural.landmarks.train import main
 
     pytest.importorskip("morphable.raster")
     try:
@@ -224,7 +224,7 @@ def test_script_gpu_recipe_on_cpu_and_bad_packs(tmp_path, capsys):
 
 
 def test_negative_crops_hold_no_whole_face():
-    from neural.landmark_data import NEGATIVE_KINDS, negative_crops
+    from neural.landmarks.data import NEGATIVE_KINDS, negative_crops
 
     cfg = LandmarkConfig(**TINY)
     src = _source(8)
@@ -242,8 +242,8 @@ def test_negative_crops_hold_no_whole_face():
 
 
 def test_score_refit_changes_the_score_row_alone(tmp_path, monkeypatch):
-    from neural import train_landmarks
-    from neural.landmark_score import fit_logistic, main
+    from neural.landmarks import train as train_landmarks
+    from neural.landmarks.score import fit_logistic, main
 
     # logistic regression on separable features: the classes end on their sides
     h = torch.cat([torch.randn(40, 3) + 3, torch.randn(40, 3) - 3]).double()

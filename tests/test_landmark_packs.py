@@ -1,5 +1,5 @@
-"""The landmark packs (neural/build_annotated.py, neural/build_profiled.py, neural/shard_pack.py,
-neural/annotations.py, neural/landmark_pack.py) on a tiny copy of the shared data."""
+"""The landmark packs (neural/faces/build_annotated.py, neural/faces/build_profiled.py, neural/faces/shards.py,
+neural/faces/annotations.py, neural/faces/packs.py) on a tiny copy of the shared data."""
 import json
 import shutil
 import subprocess
@@ -59,11 +59,11 @@ def _report(r):
 
 
 def test_annotated_pack_layout_resume_refusal(tiny, tmp_path):
-    from neural.landmark_pack import load_pack
-    from neural.landmark_set import N_POINTS
+    from neural.faces.packs import load_pack
+    from neural.faces.points import N_POINTS
 
     out = tmp_path / "ann"
-    rep = _report(_run("neural.build_annotated", "--data", tiny, "--out", out, "--resolution", 48,
+    rep = _report(_run("neural.faces.build_annotated", "--data", tiny, "--out", out, "--resolution", 48,
                        "--shard-size", 4))
     assert rep["shards_built_now"] == 3 and rep["shards_skipped"] == 0
     fails = sum(sum(v.values()) for v in rep["failures_by_source"].values())
@@ -96,18 +96,18 @@ def test_annotated_pack_layout_resume_refusal(tiny, tmp_path):
     # resume: a lost shard is rebuilt, the others are kept
     kept = (out / "shard_00000.npz").stat().st_mtime_ns
     (out / "shard_00001.npz").unlink()
-    rep2 = _report(_run("neural.build_annotated", "--data", tiny, "--out", out, "--resolution", 48,
+    rep2 = _report(_run("neural.faces.build_annotated", "--data", tiny, "--out", out, "--resolution", 48,
                         "--shard-size", 4))
     assert rep2["shards_built_now"] == 1 and rep2["shards_skipped"] == 2 and rep2["faces"] == n
     assert (out / "shard_00000.npz").stat().st_mtime_ns == kept
     np.testing.assert_array_equal(load_pack(out)["image"], d["image"])
     # other settings: refused in one line, nothing changed
-    r = _run("neural.build_annotated", "--data", tiny, "--out", out, "--resolution", 64,
+    r = _run("neural.faces.build_annotated", "--data", tiny, "--out", out, "--resolution", 64,
              "--shard-size", 4)
     assert r.returncode == 2 and "other settings" in r.stderr and len(r.stderr.splitlines()) == 1
     assert load_pack(out)["image"].shape[1] == 48
     # a compact copy reads back to the same labels
-    from neural.landmark_pack import compact
+    from neural.faces.packs import compact
 
     info = compact(out, tmp_path / "c.npz", resolution=24)
     c = load_pack(tmp_path / "c.npz")
@@ -116,7 +116,7 @@ def test_annotated_pack_layout_resume_refusal(tiny, tmp_path):
     np.testing.assert_allclose(c["points"], (d["points"] + 0.5) / 2 - 0.5, atol=0.02)
 
 
-@pytest.mark.parametrize("module", ["neural.build_annotated", "neural.build_profiled"])
+@pytest.mark.parametrize("module", ["neural.faces.build_annotated", "neural.faces.build_profiled"])
 def test_folder_without_data(tmp_path, module):
     (tmp_path / "empty").mkdir()
     r = _run(module, "--data", tmp_path / "empty", "--out", tmp_path / "p")
@@ -130,8 +130,8 @@ def test_aflw_mapping_left_right(tiny):
     image-left eye's outer corner (AFLW 6) is nearer the fit's iBUG 36 than iBUG 45, and so on
     for every left/right pair."""
     import morphable
-    from neural.annotations import AFLW21_ROWS, fit_item, set_items
-    from neural.landmark_set import IBUG_START, mirror_index
+    from neural.faces.annotations import AFLW21_ROWS, fit_item, set_items
+    from neural.faces.points import IBUG_START, mirror_index
 
     model = morphable.load_model("sfm")
     mirror = mirror_index()
@@ -150,7 +150,7 @@ def test_aflw_mapping_left_right(tiny):
 
 
 def test_validation_split_fixed():
-    from neural.shard_pack import validation_split
+    from neural.faces.shards import validation_split
 
     keys = [f"k{i}" for i in range(4000)]
     v = validation_split(keys)
@@ -160,12 +160,12 @@ def test_validation_split_fixed():
 
 
 def test_profiled_pack(tiny, tmp_path):
-    from neural.landmark_pack import load_pack
+    from neural.faces.packs import load_pack
 
     out = tmp_path / "prof"
     args = ("--data", tiny, "--out", out, "--per-photo", 2, "--aflw", 1, "--resolution", 32,
             "--shard-size", 2)
-    rep = _report(_run("neural.build_profiled", *args))
+    rep = _report(_run("neural.faces.build_profiled", *args))
     assert rep["shards_built_now"] == 2
     d = load_pack(out)
     src = np.array(d["sources"])[d["source"]]
@@ -175,10 +175,10 @@ def test_profiled_pack(tiny, tmp_path):
     assert (d["labelled"][:, :478]).all() and (d["labelled"][:, 478:].sum(1) == 66).all()
     assert d["visible"].sum(1).min() > 100 and (~d["visible"] & d["labelled"]).sum(1).min() > 20
     # London persons are in the same split as in the annotated pack's rule
-    from neural.shard_pack import validation_split
+    from neural.faces.shards import validation_split
 
     lon = src == "london"
     keys = [f"london/{p:03d}" for p in d["person"][lon]]
     np.testing.assert_array_equal(d["split"][lon], validation_split(keys).astype(np.uint8))
-    rep2 = _report(_run("neural.build_profiled", *args))
+    rep2 = _report(_run("neural.faces.build_profiled", *args))
     assert rep2["shards_built_now"] == 0 and rep2["shards_skipped"] == 2

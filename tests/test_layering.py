@@ -60,3 +60,25 @@ def test_no_import_cycle():
     for m in sorted(GRAPH):
         if m not in state:
             visit(m, [m])
+
+
+def _neural_layer(module: str) -> str:
+    """``gar``, ``landmarks`` or ``faces`` for a module of those subpackages, else ``shared``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in NEURAL_PRODUCTS) else "shared"
+
+
+NEURAL_PRODUCTS = ("gar", "landmarks", "faces")
+
+
+def test_neural_products_over_a_shared_layer():
+    # the two products use the face data engine and the shared layer; the engine only the
+    # shared layer; the shared layer (training loop, checkpoints, augmentation, GPU recipes)
+    # none of them
+    allowed = {"gar": {"gar", "faces", "shared"}, "landmarks": {"landmarks", "faces", "shared"},
+               "faces": {"faces", "shared"}, "shared": {"shared"}}
+    wrong = [(a, b) for a, deps in GRAPH.items() if a.startswith("neural")
+             for b in deps if b.startswith("neural")
+             and _neural_layer(b) not in allowed[_neural_layer(a)]]
+    assert not wrong, wrong
+    assert {_neural_layer(m) for m in GRAPH if m.startswith("neural")} == set(allowed)

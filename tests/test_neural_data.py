@@ -7,8 +7,8 @@ pytest.importorskip("open3d")
 
 from morphable.errors import FitError, InputError  # noqa: E402
 from morphable.metrics import umeyama  # noqa: E402
-from neural.data import (AlignedImageFolder, SyntheticFaces, align_image,  # noqa: E402
-                         template)
+from neural.gar.data import AlignedImageFolder, align_image
+from neural.faces.renders import SyntheticFaces, template
 
 
 @pytest.fixture(scope="module")

@@ -7,14 +7,13 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from morphable.errors import InputError  # noqa: E402
-from neural.auxnets import load_aux, save_aux  # noqa: E402
-from neural.auxnets.nets import soft_argmax  # noqa: E402
-from neural.config import GARConfig, get_config  # noqa: E402
-from neural.gar import (Discriminator, Generator, MinibatchStd, ModulatedConv2d,  # noqa: E402
-                        NormalInjection, RenderBlock)
-from neural.losses import (DEFAULT_LAMBDAS, discriminator_loss, generator_adversarial_loss,  # noqa: E402
-                           generator_losses, identity_loss, landmark_loss, normal_loss,
-                           r1_penalty, total_loss)
+from neural.gar.auxnets import load_aux, save_aux  # noqa: E402
+from neural.gar.auxnets.nets import soft_argmax  # noqa: E402
+from neural.gar.config import GARConfig, get_config  # noqa: E402
+from neural.gar.networks import (Discriminator, Generator, MinibatchStd, ModulatedConv2d,
+    NormalInjection, RenderBlock)
+from neural.gar.losses import (DEFAULT_LAMBDAS, discriminator_loss, generator_adversarial_loss,
+    generator_losses, identity_loss, landmark_loss, normal_loss, r1_penalty, total_loss)
 
 SMALL = dict(resolution=32, channel_base=256, channel_max=32, z_dim=16, w_dim=16)
 
@@ -288,7 +287,7 @@ def test_generator_losses_take_aux_networks_of_a_lower_resolution():
     """A 32-px G judged by 16-px aux networks: each aux network sees (B, 3, 16, 16) images,
     L_n compares 16-px normal maps, and the terms equal those of G's renders downsampled by
     hand."""
-    from neural.losses import area_downsample
+    from neural.gar.losses import area_downsample
 
     G, D, _, n, z1, z2 = small_gar_batch()
     aux = {k: load_aux(k, pretrained=False, width=4, resolution=16) for k in "NPLR"}
@@ -372,7 +371,7 @@ def test_aux_user_weights(tmp_path):
 
 
 def test_inverter_name_pairs_each_generator_file_with_its_inverter(tmp_path):
-    from neural.checkpoint import companion_path, inverter_name
+    from neural.gar.paths import companion_path, inverter_name
 
     assert inverter_name("w/gpu/gar_64.pt") == "inverter_64.pt"
     assert inverter_name("w/real/gar_tiny.pt") == "inverter_tiny.pt"

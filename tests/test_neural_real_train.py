@@ -23,7 +23,7 @@ def pack(tmp_path_factory, pack_maker):
 
 
 def _run(args, capsys):
-    from neural.train import main
+    from neural.gar.train import main
 
     threads = torch.get_num_threads()
     try:
@@ -52,7 +52,7 @@ def test_gpu_recipe_flags_on_cpu(pack, tmp_path, capsys):
     assert len(lines) == 3 and lines[-1].startswith("end: step 2/") and "img/s" in lines[-1]
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == 2 and ckpt["config"]["augment"] == "color,translation,cutout"
-    from neural.checkpoint import load_generator
+    from neural.gar.networks import load_generator
 
     G = load_generator(gen)
     n = torch.zeros(1, 3, 32, 32)
@@ -82,10 +82,10 @@ def test_resumed_run_ends_with_the_same_weights(pack, tmp_path, capsys):
 
 
 def test_discriminator_photos_are_other_people(pack, tmp_path):
-    from neural.auxnets import NAMES, load_aux
-    from neural.config import get_config
-    from neural.real_faces import RealFaces
-    from neural.train import Trainer
+    from neural.gar.auxnets import NAMES, load_aux
+    from neural.gar.config import get_config
+    from neural.gar.real_faces import RealFaces
+    from neural.gar.train import Trainer
 
     cfg = get_config("tiny", resolution=32, channel_base=256, channel_max=32, z_dim=16,
                      w_dim=16, aux_width=4, batch_size=2)
@@ -106,8 +106,8 @@ def test_discriminator_photos_are_other_people(pack, tmp_path):
 
 
 def test_landmark_set():
-    from neural.config import get_config
-    from neural.train import landmark_index
+    from neural.gar.config import get_config
+    from neural.gar.train import landmark_index
 
     class L:
         meta = {}
@@ -170,7 +170,7 @@ def test_gar_gpu_recipe_on_cpu(tmp_path_factory, pack_maker, tmp_path):
         assert s["config"]["resolution"] == side and s["images_per_second"] > 0
         assert s["device"] == "cpu" and np.isfinite(list(s["losses_recent_mean"].values())).all()
         assert report["jobs"][f"inv{side}"]["metrics"]["steps"] == 1
-    from neural.gar_renderer import GARRenderer
+    from neural.gar.renderer import GARRenderer
 
     r = GARRenderer(weights=out / "gar_128.pt", inverter=out / "inverter_128.pt")
     n = torch.zeros(1, 3, 128, 128)

@@ -26,7 +26,7 @@ def _steps(out: Path) -> list:
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory, data_dir):
-    from neural.train import main
+    from neural.gar.train import main
 
     out = tmp_path_factory.mktemp("full")
     threads = torch.get_num_threads()
@@ -52,8 +52,8 @@ def test_smoke_run_outputs(uninterrupted):
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert ckpt["step"] == STEPS and ckpt["config"]["resolution"] == 32
     gen = torch.load(out / "generator.pt", weights_only=True)
-    from neural.config import GARConfig
-    from neural.gar import Generator
+    from neural.gar.config import GARConfig
+    from neural.gar.networks import Generator
 
     G = Generator(GARConfig.from_dict(gen["config"]))
     G.load_state_dict(gen["G"])
@@ -64,7 +64,7 @@ def test_smoke_run_outputs(uninterrupted):
 
 def test_kill_and_resume_matches_uninterrupted(uninterrupted, tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "neural.train", *ARGS, "--out", str(out), "--steps", str(STEPS)]
+    cmd = [sys.executable, "-m", "neural.gar.train", *ARGS, "--out", str(out), "--steps", str(STEPS)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
@@ -95,7 +95,7 @@ def test_kill_and_resume_matches_uninterrupted(uninterrupted, tmp_path):
 
 
 def test_lazy_contrastive_terms(tmp_path, data_dir):
-    from neural.train import main
+    from neural.gar.train import main
 
     out = tmp_path / "lazy"
     threads = torch.get_num_threads()
@@ -116,7 +116,7 @@ def test_lazy_contrastive_terms(tmp_path, data_dir):
 
 
 def test_bad_arguments_one_line_error(tmp_path, capsys):
-    from neural.train import main
+    from neural.gar.train import main
 
     assert main(["--out", str(tmp_path / "x"), "--config", "huge"]) == 2
     err = capsys.readouterr().err.strip()
@@ -127,7 +127,7 @@ def test_bad_arguments_one_line_error(tmp_path, capsys):
 
 
 def test_time_budget_stops_with_checkpoint(tmp_path, data_dir):
-    from neural.train import main
+    from neural.gar.train import main
 
     out = tmp_path / "budget"
     threads = torch.get_num_threads()
@@ -142,7 +142,7 @@ def test_time_budget_stops_with_checkpoint(tmp_path, data_dir):
 def test_resume_with_another_architecture_one_line_error(uninterrupted, tmp_path, capsys):
     import shutil
 
-    from neural.train import main
+    from neural.gar.train import main
 
     out = tmp_path / "other"
     shutil.copytree(uninterrupted, out)

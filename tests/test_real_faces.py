@@ -1,15 +1,15 @@
-"""The real-photo pack format (neural.real_faces): round trip, quantisation, mirror flips."""
+"""The real-photo pack format (neural.gar.real_faces): round trip, quantisation, mirror flips."""
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural.real_faces import RealFaces, flip_faces, load_pack, save_pack  # noqa: E402
+from neural.gar.real_faces import RealFaces, flip_faces, load_pack, save_pack  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def arrays():
-    from neural.data import SyntheticFaces
+    from neural.faces.renders import SyntheticFaces
 
     faces = SyntheticFaces(resolution=32, supersample=1)
     rng = np.random.default_rng(0)
@@ -71,8 +71,8 @@ def test_real_faces_batches_split_and_partner(arrays, tmp_path):
 def test_downsample_matches_a_render_at_the_lower_resolution():
     """A 32-px render area-downsampled to 16 px is the 16-px render with 2 x 2 supersampling
     of the same face: normals within a few degrees, coverage, landmarks to 0.01 px."""
-    from neural.data import SyntheticFaces
-    from neural.real_faces import downsample_faces
+    from neural.faces.renders import SyntheticFaces
+    from neural.gar.real_faces import downsample_faces
 
     draw = SyntheticFaces(resolution=32).draw(np.random.default_rng(3))
     draw = {k: v for k, v in draw.items() if k != "tone"}
@@ -113,7 +113,7 @@ def test_pack_with_normals_at_half_resolution(arrays, tmp_path):
     enlarged to 32 px as torch's bilinear interpolation does, unit length on the face."""
     import torch.nn.functional as F
 
-    from neural.real_faces import downsample_faces
+    from neural.gar.real_faces import downsample_faces
 
     full = save_pack(tmp_path / "full.npz", arrays, normal_scale=127)
     half = save_pack(tmp_path / "half.npz", arrays, normal_scale=127, normal_resolution=16)

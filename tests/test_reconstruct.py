@@ -12,11 +12,11 @@ from morphable.errors import InputError  # noqa: E402
 from morphable.fitting import fit_landmarks  # noqa: E402
 from morphable.raster import DirectionalLight, render, sh_from_lights  # noqa: E402
 from morphable.refinement import crop_camera, crop_image, edit, face_crop, refine  # noqa: E402
-from neural.config import get_config  # noqa: E402
-from neural.gar import Generator  # noqa: E402
-from neural.gar import pixel_norm  # noqa: E402
-from neural.inverter import Inverter, inverter_loss, load_inverter, save_inverter  # noqa: E402
-from neural.gar_renderer import GARRenderer  # noqa: E402
+from neural.gar.config import get_config  # noqa: E402
+from neural.gar.networks import Generator  # noqa: E402
+from neural.gar.networks import pixel_norm  # noqa: E402
+from neural.gar.inverter import Inverter, inverter_loss, load_inverter, save_inverter  # noqa: E402
+from neural.gar.renderer import GARRenderer  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +38,7 @@ def synthetic(sfm):
 
 
 def test_face_crop_is_the_training_framing():
-    from neural.data import template
+    from neural.faces.renders import template
 
     left, top, side = face_crop(template(64))
     assert round(side, 1) == 64.0 and round(left + side / 2, 1) == 32.0  # the template fills its crop
@@ -132,7 +132,7 @@ def test_gar_refinement_runs_untrained(synthetic):
 
 
 def test_inverter_training_smoke(tmp_path):
-    from neural.train_inverter import train
+    from neural.gar.train_inverter import train
 
     torch.manual_seed(0)
     cfg = get_config("tiny", resolution=16, channel_base=256, channel_max=32, z_dim=16,
@@ -162,7 +162,7 @@ def test_inverter_training_smoke(tmp_path):
 
 
 def test_inverter_on_real_pack_reports_photo_reconstruction(tiny_pack):
-    from neural.train_inverter import train
+    from neural.gar.train_inverter import train
 
     torch.manual_seed(0)
     cfg = get_config("tiny", resolution=16, channel_base=256, channel_max=32, z_dim=16,
@@ -240,8 +240,8 @@ def test_ablation_smoke(tmp_path):
 
 def test_corrupt_weight_files_give_one_line_errors(tmp_path):
     from morphable import InputError
-    from neural.checkpoint import load_generator
-    from neural.inverter import load_inverter
+    from neural.gar.networks import load_generator
+    from neural.gar.inverter import load_inverter
 
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
@@ -331,7 +331,7 @@ def test_landmark_trust_follows_the_fits_noise_model(synthetic, sfm):
 
 def test_gar_renderer_takes_the_inverter_beside_its_weights(tmp_path):
     """A weights folder is a set: the generator with the V trained against it."""
-    from neural.checkpoint import default_inverter_path
+    from neural.gar.paths import default_inverter_path
 
     cfg = get_config("tiny", resolution=16, channel_base=256, channel_max=32, z_dim=16,
                      w_dim=16, mapping_layers=2)

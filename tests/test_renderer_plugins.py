@@ -64,8 +64,8 @@ def test_classical_is_differentiable():
 
 
 def test_gar_needs_weights(monkeypatch, tmp_path):
-    import neural.gar_renderer as nr
-    from neural.checkpoint import WEIGHTS_ENV
+    import neural.gar.renderer as nr
+    from neural.gar.paths import WEIGHTS_ENV
 
     monkeypatch.setenv(WEIGHTS_ENV, str(tmp_path / "missing.pt"))
     with pytest.raises(InputError, match="missing.pt"):
@@ -90,7 +90,7 @@ def test_inversion_hooks():
     """What refinement asks a renderer: the start, the pixels compared, the prior, the
     constraint and the features; the defaults for a renderer that says nothing."""
     from morphable.renderer_plugins import RendererBase, plugin_feature_network
-    from neural.inverter import Inverter
+    from neural.gar.inverter import Inverter
 
     image = torch.rand(1, 3, 64, 64)
     cover = torch.zeros(1, 1, 64, 64)

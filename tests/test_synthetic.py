@@ -1,5 +1,5 @@
-"""Synthetic faces with exact labels (neural/synthetic.py) and the pack builder
-(neural/build_synthetic.py), on tiny renders."""
+"""Synthetic faces with exact labels (neural/faces/synthetic.py) and the pack builder
+(neural/faces/build_synthetic.py), on tiny renders."""
 import json
 import subprocess
 import sys
@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("open3d")
 
-from neural.synthetic import LIGHTS, SyntheticEngine, label_exactness  # noqa: E402
+from neural.faces.synthetic import LIGHTS, SyntheticEngine, label_exactness  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -79,7 +79,7 @@ def test_ict_engine():
 
 
 def _build(out, *extra):
-    cmd = [sys.executable, "-m", "neural.build_synthetic", "--out", str(out), "--n", "5",
+    cmd = [sys.executable, "-m", "neural.faces.build_synthetic", "--out", str(out), "--n", "5",
            "--resolution", "16", "--shard-size", "2", "--textures", "0", "--backgrounds", "none",
            "--seed", "7", *extra]
     r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
@@ -87,7 +87,7 @@ def _build(out, *extra):
 
 
 def test_builder_resumes(tmp_path):
-    from neural.build_synthetic import load_pack
+    from neural.faces.build_synthetic import load_pack
 
     out = tmp_path / "pack"
     r = _build(out)

@@ -304,7 +304,7 @@ def gar_refiner():
     """:func:`morphable.refinement.refine_frames`, or a one-line InputError when the neural
     plugin (the gar renderer) is not installed (callers check before a long run)."""
     try:
-        import neural.gar_renderer  # noqa: F401
+        import neural.gar.renderer  # noqa: F401
     except ImportError as e:
         raise InputError(f"method gar: the neural plugin is not installed ({e}); "
                          "pip install -e '.[neural]'") from None

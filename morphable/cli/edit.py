@@ -26,7 +26,7 @@ def add_parser(sub):
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
     add_loss_weight_argument(p)
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
-                                                    "(default: neural/weights/inverter_tiny.pt if present)")
+                                                    "(default: neural/gar/weights/inverter_tiny.pt if present)")
     p.add_argument("--yaw", type=float, help="new yaw, degrees (default: the recovered one)")
     p.add_argument("--pitch", type=float, help="new pitch, degrees")
     p.add_argument("--roll", type=float, help="new roll, degrees")

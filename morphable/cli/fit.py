@@ -48,11 +48,11 @@ def add_parser(sub):
                    help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
     p.add_argument("--refine", choices=("classical", "gar"),
                    help="then refine by inverting a renderer (needs the neural extra; "
-                        "gar: generator weights, see neural/README.md)")
+                        "gar: generator weights, see neural/gar/README.md)")
     p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
     add_loss_weight_argument(p, what="--refine")
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
-                                                    "(default: neural/weights/inverter_tiny.pt if present)")
+                                                    "(default: neural/gar/weights/inverter_tiny.pt if present)")
     p.add_argument("--refine-render", metavar="PNG",
                    help="output .png: the face crop next to the refined render (first image)")
     return p

@@ -1,7 +1,7 @@
 """Landmark detectors from plugins: the entry-point group ``morphable.landmark_detectors``.
 
 A plugin registers ``name = package.module:Class`` in that group (the neural plugin:
-``network = neural.landmark_detector:NetworkDetector``). Nothing is imported until a
+``network = neural.landmarks.detector:NetworkDetector``). Nothing is imported until a
 detector is asked for by name (or ``"auto"`` asks whether it can run), so ``morphable`` never
 imports torch itself.
 
