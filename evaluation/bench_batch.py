@@ -9,7 +9,7 @@ Two workloads:
   68-point predictor, ``landmark_detector="dlib"`` as when the table was measured, then the fit), repeated to the requested count.
 
 Every configuration runs :func:`morphable.batch.run_batch` with the real work function
-(:func:`morphable.fitting.files.fit_item`: fit, then write ``fit.obj`` and ``fit.json``) into
+(:func:`morphable.pipeline.fit_item`: fit, then write ``fit.obj`` and ``fit.json``) into
 a fresh output folder; the time includes starting the pool or cluster and each worker's first
 model load, as a user of the command would see it (after one warm-up fit in the main
 process, which forked pool workers inherit and Dask's spawned workers do not). "1 worker" of the local pool is the
@@ -85,7 +85,7 @@ def make_photo_items(folder, n: int) -> Path:
 
 def run_config(items, out, executor: str, workers: int, options: dict) -> dict:
     from morphable.batch import read_results, run_batch
-    from morphable.fitting.files import fit_item
+    from morphable.pipeline import fit_item
 
     t0, c0 = time.perf_counter(), time.process_time()
     counts = run_batch(items, out, fit_item, options, workers=workers,

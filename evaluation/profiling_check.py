@@ -39,11 +39,11 @@ def profiled(path, landmarks=None, yaws=(0.0,), texture_size=256):
     """Fit ``path`` (SFM; ``landmarks`` file or the face mesh) and turn it by each of ``yaws``
     -> (fit, list of :func:`morphable.profiling.profile_photo` results)."""
     from morphable.detection import read_image
-    from morphable.fitting.files import fit_files
+    from morphable.pipeline import fit_images
     from morphable.profiling import profile_photo
     from morphable.texture import extract_texture
 
-    fit, _ = fit_files([path], [landmarks] if landmarks else None, landmark_detector="facemesh")
+    fit = fit_images(path, landmarks, landmark_detector="facemesh").fit
     photo = read_image(path)
     tex = extract_texture(fit, [photo], size=texture_size)
     return fit, [profile_photo(photo, fit, y, texture=tex) for y in yaws]

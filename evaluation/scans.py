@@ -301,13 +301,13 @@ def photo_colors(model, photo, landmarks=None) -> np.ndarray:
     >>> colors = photo_colors(ict, "../shared/data/images/image_0010.png")  # doctest: +SKIP
     >>> scan = model_scan(ict, 100, colors=colors)  # doctest: +SKIP
     """
-    from morphable.fitting.files import fit_files
+    from morphable.pipeline import fit_images
     from morphable.raster import vertex_colors
 
     photo = Path(photo)
     if landmarks is None and photo.with_suffix(".pts").is_file():
         landmarks = photo.with_suffix(".pts")
-    res, _ = fit_files([photo], [landmarks], model=model)
+    res = fit_images(photo, landmarks, model=model).fit
     try:
         colors, _ = vertex_colors(res.vertices(0), model.triangles, res.cameras[0], photo,
                                   model.symmetry)

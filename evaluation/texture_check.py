@@ -55,11 +55,10 @@ def texture_layout_of(model, texture):
 def one_photo(path, landmarks=None, size=512, model="sfm"):
     """Fit, texture and compare one photo -> a row dict."""
     from morphable.detection import read_image
-    from morphable.fitting.files import fit_files
+    from morphable.pipeline import fit_images
     from morphable.texture import extract_texture
 
-    res, _ = fit_files([path], [landmarks] if landmarks else None, model=model,
-                       landmark_detector="facemesh")
+    res = fit_images(path, landmarks, model=model, landmark_detector="facemesh").fit
     extract_texture(res, [path], size=size)            # warm-up: the layout tables are cached
     tex = extract_texture(res, [path], size=size)
     photo = read_image(path).astype(np.float64) / 255
@@ -72,10 +71,10 @@ def pair(neutral, smiling, size=512, model="sfm"):
     """London neutral + smiling photos of one person fitted together; the neutral frame drawn
     with the blended texture and with each frame's own."""
     from morphable.detection import read_image
-    from morphable.fitting.files import fit_files
+    from morphable.pipeline import fit_images
     from morphable.texture import texture_from_views
 
-    res, _ = fit_files([neutral, smiling], None, model=model, landmark_detector="facemesh")
+    res = fit_images([neutral, smiling], model=model, landmark_detector="facemesh").fit
     photo = read_image(neutral).astype(np.float64) / 255
     verts = res.vertices(dtype=np.float64)
     row = {"person": Path(neutral).stem.split("_")[0]}

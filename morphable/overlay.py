@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["draw_overlay", "save_overlay", "write_overlays", "check_overlay_path", "face_box", "MESH_STYLES", "GIVEN_COLOR",
+__all__ = ["draw_overlay", "save_overlay", "write_overlays", "overlay_paths", "check_overlay_path", "face_box", "MESH_STYLES", "GIVEN_COLOR",
            "FITTED_COLOR"]
 
 MESH_STYLES = ("shaded", "wireframe", None)
@@ -250,8 +250,14 @@ def write_overlays(path, result, images, **kwargs) -> list:
     images = list(images)
     if len(images) != result.n_frames:
         raise InputError(f"{len(images)} images for a fit of {result.n_frames} frames")
+    return [save_overlay(p, im, result, i, **kwargs)
+            for i, (p, im) in enumerate(zip(overlay_paths(path, len(images)), images))]
+
+
+def overlay_paths(path, n_frames: int) -> list:
+    """The files :func:`write_overlays` writes for a fit of ``n_frames`` frames: ``path``
+    itself for one, else ``stem_<i>.suffix``."""
     path = Path(path)
-    if len(images) == 1:
-        return [save_overlay(path, images[0], result, 0, **kwargs)]
-    return [save_overlay(path.with_name(f"{path.stem}_{i}{path.suffix}"), im, result, i, **kwargs)
-            for i, im in enumerate(images)]
+    if n_frames == 1:
+        return [path]
+    return [path.with_name(f"{path.stem}_{i}{path.suffix}") for i in range(n_frames)]

@@ -24,8 +24,8 @@ points where they project), with visibility (:func:`morphable.labels.project_lab
 
 Examples
 --------
->>> from morphable.fitting.files import fit_files                               # doctest: +SKIP
->>> fit, _ = fit_files(["face.png"], ["face.pts"])                              # doctest: +SKIP
+>>> from morphable import fit_images                                            # doctest: +SKIP
+>>> fit = fit_images("face.png", "face.pts").fit                                # doctest: +SKIP
 >>> out = profile_photo("face.png", fit, 45.0)                                  # doctest: +SKIP
 >>> out["image"].shape, out["landmarks_px"]["68"].shape                         # doctest: +SKIP
 ((512, 512, 3), (68, 2))

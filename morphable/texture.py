@@ -14,8 +14,8 @@ centre at ``u = (j + 0.5) / S``, ``v = 1 - (i + 0.5) / S`` (row 0 is the top, v 
 
 Examples
 --------
->>> from morphable.fitting.files import fit_files                        # doctest: +SKIP
->>> res, _ = fit_files(["face.png"], ["face.pts"])                        # doctest: +SKIP
+>>> from morphable import fit_images                                     # doctest: +SKIP
+>>> res = fit_images("face.png", "face.pts").fit                         # doctest: +SKIP
 >>> tex = extract_texture(res, ["face.png"], size=256)                    # doctest: +SKIP
 >>> tex.image.shape, tex.observed.mean() > 0.3                            # doctest: +SKIP
 ((256, 256, 3), True)

@@ -5,7 +5,7 @@
 1. the identity: ``identity_frames`` frames spread uniformly over the video (frames without
    a face skipped), each fitted alone and their identities averaged (``identity="average"``,
    the default) or fitted together with one shared identity (``"shared"``), by
-   :func:`morphable.fitting.files.fit_files`;
+   :func:`morphable.pipeline.fit_images`;
 2. every frame, streamed (:func:`morphable.video.iter_frames`) in batches of
    :func:`chunk_frames` frames: landmarks detected in the box of the previous frame's points
    (:func:`carried_box`), the face detector run only when there is no box or the face is not
@@ -19,6 +19,9 @@
    angles, translation, log scale and expression, given the per-frame fits as measurements.
    Its strength is a cut-off frequency in Hz (``smoothing_hz``): motion slower than it passes,
    faster detector jitter is removed. 0 turns it off.
+
+Also ``morphable.track_video``; ``morphable track`` writes its result with
+:func:`morphable.pipeline.write_track`.
 
 Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
 """
@@ -378,9 +381,9 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
     """
     from .camera import Camera, euler_to_matrix
     from .detection import describe
-    from .fitting.files import fit_files
     from .fitting.noise import effective_std
     from .fitting.result import FitResult
+    from .pipeline.fit import fit_images
     from .video import iter_frames, probe
 
     if int(identity_frames) < 1:
@@ -395,9 +398,9 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
         from .io.registry import load_model
 
         model = load_model(str(model))
-    res, _ = fit_files([path], model=model, landmark_detector=landmark_detector,
-                       face_detector=face_detector, video_frames=identity_frames,
-                       shared_identity=identity == "shared")
+    res = fit_images(path, model=model, landmark_detector=landmark_detector,
+                     face_detector=face_detector, video_frames=identity_frames,
+                     shared_identity=identity == "shared").fit
     alpha = res.identity
     fixed = fixed_identity_model(model, alpha)
     F, E = info.n_frames, model.n_expression

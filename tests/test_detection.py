@@ -296,14 +296,15 @@ def test_facemesh_on_grey_rgba_16bit_and_exif_rotated_photos(photo, mesh_points,
 
 def test_478_point_files_are_read_and_fitted(photo, mesh_points, tmp_path):
     from morphable.detection.facemesh import to_ibug68
-    from morphable.fitting.files import fit_files, read_landmark_file
+    from morphable.pipeline import fit_images, read_landmark_file
 
     np.save(tmp_path / "a.npy", mesh_points)
     (tmp_path / "b.json").write_text(json.dumps(mesh_points.tolist()))
     (tmp_path / "c.json").write_text(json.dumps({"landmarks": mesh_points.tolist()}))
     for name in ("a.npy", "b.json", "c.json"):
         np.testing.assert_allclose(read_landmark_file(tmp_path / name, (1280, 1024)), mesh_points)
-    res, report = fit_files([photo], [tmp_path / "a.npy"])
+    result = fit_images([photo], [tmp_path / "a.npy"])
+    res, report = result.fit, result.report
     # the fit takes the 478 points themselves (the facemesh478 scheme)
     np.testing.assert_allclose(res.landmarks[0], mesh_points)
     assert report["frames"][0]["landmark_rmse_px"] < 10
@@ -311,7 +312,7 @@ def test_478_point_files_are_read_and_fitted(photo, mesh_points, tmp_path):
     assert len(lm68) == 68 and sum(p is not None and len(p) == 2 for p in lm68) == 66
     # with a 68-point file beside it, one landmark set for both: the face mesh's mapped to 68
     pts = photo.with_suffix(".pts")
-    res, _ = fit_files([photo, photo], [pts, tmp_path / "a.npy"])
+    res = fit_images([photo, photo], [pts, tmp_path / "a.npy"]).fit
     assert res.landmarks.shape == (2, 68, 2)
     np.testing.assert_allclose(res.landmarks[1], to_ibug68(mesh_points))
 
@@ -320,7 +321,7 @@ def test_import_loads_no_detector():
     import subprocess
     import sys
 
-    code = ("import sys, morphable, morphable.detection, morphable.fitting.files, morphable.cli, morphable.video; "
+    code = ("import sys, morphable, morphable.detection, morphable.pipeline, morphable.cli, morphable.video; "
             "print([m for m in ('mediapipe', 'cv2', 'dlib', 'matplotlib', 'av') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

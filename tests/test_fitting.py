@@ -783,11 +783,11 @@ def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir):
 
 def test_fit_settings_have_one_name_in_the_api_cli_and_batch_options(tmp_path, data_dir, sfm):
     """``--n-iterations``, ``--robust huber`` and ``--focal-px`` are the keywords
-    ``n_iterations``, ``robust`` and ``focal_px`` of the fit, of ``fit_files`` and of a
+    ``n_iterations``, ``robust`` and ``focal_px`` of the fit, of ``fit_images`` and of a
     fit-batch item's options, and give the same fit."""
     from morphable.batch import BatchItem
     from morphable.cli import main
-    from morphable.fitting.files import fit_files, fit_item
+    from morphable.pipeline import fit_images, fit_item
 
     img = data_dir / "images" / "image_0010.png"
     pts = data_dir / "images" / "image_0010.pts"
@@ -797,7 +797,7 @@ def test_fit_settings_have_one_name_in_the_api_cli_and_batch_options(tmp_path, d
                  "--camera", "perspective", "--focal-px", "900", "--n-iterations", "1",
                  "--robust", "huber"]) == 0
     cli = json.loads(report.read_text())
-    api, _ = fit_files([img], [pts], model=sfm, **settings)
+    api = fit_images([img], [pts], model=sfm, **settings).fit
     folder = tmp_path / "item"
     folder.mkdir()
     fit_item(BatchItem("a", [str(img)], [str(pts)]), folder, {"model": "sfm", **settings})
@@ -806,10 +806,10 @@ def test_fit_settings_have_one_name_in_the_api_cli_and_batch_options(tmp_path, d
         assert rep["iterations"] == api.iterations == 1
         assert rep["frames"][0]["focal_px"] == 900.0
         np.testing.assert_allclose(rep["identity"], api.identity, atol=1e-9)
-    plain, _ = fit_files([img], [pts], model=sfm, **{**settings, "robust": None})
+    plain = fit_images([img], [pts], model=sfm, **{**settings, "robust": None}).fit
     assert not np.allclose(plain.identity, api.identity)  # robust="huber" took effect
     with pytest.raises(InputError, match="robust"):
-        fit_files([img], [pts], model=sfm, robust=True)
+        fit_images([img], [pts], model=sfm, robust=True)
 
 
 def test_cli_fit_bad_input_writes_nothing(tmp_path, data_dir, capsys):

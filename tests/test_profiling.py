@@ -17,15 +17,15 @@ def small_photo(data_dir, tmp_path_factory):
     """image_0010 and its 68 points at a quarter of the size (320 x 256), with its fit."""
     from PIL import Image
 
-    from morphable.fitting.files import fit_files
     from morphable.io.landmark_files import read_pts, write_pts
+    from morphable.pipeline import fit_images
 
     d = tmp_path_factory.mktemp("profile")
     with Image.open(data_dir / "images" / "image_0010.png") as im:
         im.convert("RGB").resize((320, 256), Image.Resampling.BOX).save(d / "face.png")
     pts = read_pts(data_dir / "images" / "image_0010.pts")
     write_pts(d / "face.pts", (pts + 0.5) / 4 - 0.5)
-    fit, _ = fit_files([d / "face.png"], [d / "face.pts"])
+    fit = fit_images([d / "face.png"], [d / "face.pts"]).fit
     return d, fit
 
 

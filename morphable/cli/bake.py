@@ -1,86 +1,15 @@
 """``morphable bake``: a normal map (screen or UV space) with optional depth and mask PNGs."""
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..errors import InputError
-from .common import add_model_argument
-
-
-def add_camera_arguments(p, size_default):
-    """Camera options shared by bake and render."""
-    p.add_argument("--size", type=int, default=None,
-                   help=f"image size in pixels: square for MESH (default {size_default}); with "
-                        "--fit the fit's image scaled to this width (default its own size)")
-    p.add_argument("--camera", choices=("affine", "perspective"), default="affine",
-                   help="projection for MESH (default affine); a fit brings its own camera")
-    p.add_argument("--yaw", type=float, default=0.0,
-                   help="degrees, positive turns the nose to the image right")
-    p.add_argument("--pitch", type=float, default=0.0, help="degrees, positive turns the nose down")
-    p.add_argument("--roll", type=float, default=0.0, help="degrees, counter-clockwise in the image")
-    p.add_argument("--supersample", type=int, default=1, help="antialiasing samples per pixel and axis")
-
-
-def add_source_arguments(p):
-    p.add_argument("mesh", nargs="?", metavar="MESH",
-                   help="mesh file (.obj .ply .stl .off .glb) or model name; default the --model mean")
-    p.add_argument("--fit", metavar="FIT.json", help="draw a fitted face with its camera instead of MESH")
-    p.add_argument("--frame", type=int, default=0, help="frame of the fit report (default 0)")
-    add_model_argument(p)
-    p.set_defaults(model=None)  # None: MESH, or the fit's own model
-
-
-def check_outputs(*paths):
-    """Fail before any work when an output cannot be written (no partial outputs)."""
-    for path in paths:
-        if path is None:
-            continue
-        path = Path(path)
-        if path.suffix.lower() != ".png":
-            raise InputError(f"{path}: output must be a .png file")
-        folder = path.parent if str(path.parent) else Path(".")
-        if not folder.is_dir():
-            raise InputError(f"{path}: output folder {folder} does not exist")
-
-
-def source_and_camera(args, size_default):
-    """(Mesh, Camera or None) from MESH / --fit / --model and the camera options."""
-    from ..io.registry import DEFAULT_MODEL, load_model
-    from ..raster import frame_mesh
-    from ..raster.inputs import load_fit_frame, load_mesh
-
-    if args.size is not None and args.size <= 0:
-        raise InputError(f"--size must be a positive number of pixels, got {args.size}")
-    if args.fit and args.mesh:
-        raise InputError("give either MESH or --fit, not both")
-    if args.fit:
-        mesh, cam = load_fit_frame(args.fit, args.frame,
-                                   model=None if args.model is None else load_model(args.model))
-        if args.size is not None:
-            cam = resized(cam, args.size / cam.image_size[0])
-        return mesh, cam
-    mesh = load_mesh(args.mesh or args.model or DEFAULT_MODEL)
-    size = args.size or size_default
-    cam = frame_mesh(mesh.vertices, (size, size), yaw=args.yaw, pitch=args.pitch, roll=args.roll,
-                     kind=args.camera)
-    return mesh, cam
-
-
-def resized(camera, factor):
-    """The camera for the same view in an image scaled by ``factor``."""
-    from dataclasses import replace
-
-    W, H = camera.image_size
-    size = (max(1, round(W * factor)), max(1, round(H * factor)))
-    principal = (camera.principal + 0.5) * factor - 0.5
-    return replace(camera, scale=camera.scale * factor, focal=camera.focal * factor,
-                   image_size=size, principal=principal)
+from .common import add_camera_arguments, add_source_arguments, check_outputs, source_and_camera
 
 
 def add_parser(sub):
     p = sub.add_parser("bake", help="normal map (screen or UV space), depth and mask as PNG")
     add_source_arguments(p)
-    p.add_argument("--space", choices=("screen", "uv"), default="screen")
+    p.add_argument("--space", choices=("screen", "uv"), default="screen",
+                   help="screen: the camera's image; uv: the mesh's UV layout (default screen)")
     add_camera_arguments(p, 256)
     p.add_argument("--normals", choices=("camera", "world"), default="camera",
                    help="frame of screen-space normals (default camera: +z towards the viewer)")

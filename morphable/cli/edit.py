@@ -22,16 +22,18 @@ def add_parser(sub):
                                                       "(478) (default: detect, see --landmark-detector)")
     add_detector_arguments(p)
     add_model_argument(p)
-    p.add_argument("--renderer", choices=("gar", "classical"), default="gar")
+    p.add_argument("--renderer", choices=("gar", "classical"), default="gar",
+                   help="the renderer inverted: gar (the neural plugin's generator) or classical "
+                        "(Lambertian, uniform albedo, spherical-harmonics light) (default gar)")
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
     add_loss_weight_argument(p)
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
                                                     "(default: neural/gar/weights/inverter_tiny.pt if present)")
     p.add_argument("--yaw", type=float, help="new yaw, degrees (default: the recovered one)")
-    p.add_argument("--pitch", type=float, help="new pitch, degrees")
-    p.add_argument("--roll", type=float, help="new roll, degrees")
+    p.add_argument("--pitch", type=float, help="new pitch, degrees (default: the recovered one)")
+    p.add_argument("--roll", type=float, help="new roll, degrees (default: the recovered one)")
     p.add_argument("--expression", nargs="*", default=[], metavar="NAME=WEIGHT",
-                   help="expression coefficients to set, e.g. happiness=0.8")
+                   help="expression coefficients to set, e.g. happiness=0.8 (default: the recovered ones)")
     p.add_argument("--out", required=True, help="output .png")
     p.add_argument("--only-edit", action="store_true", help="write only the edited render")
     p.add_argument("--zoom", type=int, default=4, help="nearest-neighbour enlargement (default 4)")
@@ -58,19 +60,18 @@ def run(args):
         w = parse_weights(model, [item])          # validates the name and the number
         name = item.partition("=")[0]
         expression[name] = w[model.expression_index(name)]
-    from ..detection import read_image
-    from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
+    from ..pipeline import fit_images
     from ..raster import save_image_png
-    from ..refinement import edit, parse_loss_weights, refine
+    from ..refinement import edit, parse_loss_weights
 
     weights = parse_loss_weights(args.loss_weight, "--loss-weight")
     options = renderer_options(args.inverter, what="edit")
 
-    res, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model,
-                       landmark_detector=args.landmark_detector, face_detector=args.face_detector)
-    fit, report, state = refine(read_image(args.image), res, args.renderer, steps=args.steps,
-                                weights=weights, renderer_options=options, return_state=True)
+    result = fit_images(args.image, args.landmarks, model=model, refine=args.renderer,
+                        refine_options={"steps": args.steps, "weights": weights, "renderer_options": options},
+                        landmark_detector=args.landmark_detector, face_detector=args.face_detector)
+    report, state = result.report["refine"][0], result.refinements[0]
     edited = edit(state, yaw=args.yaw, pitch=args.pitch, roll=args.roll, expression=expression)
     img = edited if args.only_edit else np.concatenate([state.target, state.rendered, edited], 1)
     img = img.repeat(args.zoom, 0).repeat(args.zoom, 1)

@@ -8,12 +8,13 @@ Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson`` 68 points
 face-mesh points in ``.npy``/``.json``, one file per image) or are detected
 (``--landmark-detector``, ``--face-detector``; then fitted with a detector's error,
 ``DETECTED_MODEL_STD_MM``). Writes
-the mesh (OBJ with UVs; with several images the shared identity without expression) and a JSON
-report; both are written only once the fit has succeeded.
+the mesh (OBJ with UVs; with several images the shared identity without expression), a JSON
+report, a texture and overlays, all only once the fit has succeeded, and all or none.
+
+The command line of :func:`morphable.pipeline.fit_images` and :meth:`ImageFit.write
+<morphable.pipeline.ImageFit.write>`.
 """
 from __future__ import annotations
-
-from pathlib import Path
 
 from ..errors import InputError
 from .common import (add_fitting_arguments, add_loss_weight_argument, add_model_argument, model_from,
@@ -59,31 +60,19 @@ def add_parser(sub):
 
 
 def run(args):
-    from ..fitting.files import expand_videos, fit_files, write_fit
+    from ..pipeline import check_output_paths, fit_images
     from ..refinement import parse_loss_weights
 
-    if args.overlay:
-        from ..overlay import check_overlay_path
-
-        check_overlay_path(args.overlay)
+    # every output checked first: either every output is written or none
+    check_output_paths(mesh=args.out_mesh, report=args.report, texture=args.out_texture,
+                       overlay=args.overlay, refine_render=args.refine_render)
     model = model_from(args)
     if args.out_texture:
-        from .bake import check_outputs
-
-        check_outputs(args.out_texture)
-        if args.out_mesh and str(args.out_mesh).lower().endswith(".obj"):
-            from ..io.mesh import mtl_texture_reference
-
-            mtl_texture_reference(args.out_mesh, args.out_texture)    # before any file is written
         if model.uv is None:
             raise InputError(f"{args.model}: the model has no UV coordinates, so --out-texture "
                              "cannot be written")
         if not 8 <= args.texture_size <= 8192:
             raise InputError(f"--texture-size must be 8..8192 texels, got {args.texture_size}")
-    for out in (args.out_mesh, args.report):
-        # check the outputs' folders first: either every output is written or none
-        if out and not Path(out).resolve().parent.is_dir():
-            raise InputError(f"{out}: folder {Path(out).resolve().parent} does not exist")
     if args.landmarks and len(args.landmarks) != len(args.images):
         raise InputError(f"--landmarks: {len(args.landmarks)} files for {len(args.images)} images")
     if args.n_iterations < 0:
@@ -97,35 +86,24 @@ def run(args):
     if args.loss_weight and not args.refine:
         raise InputError("--loss-weight needs --refine")
     weights = parse_loss_weights(args.loss_weight, "--loss-weight")
-    # videos are opened here, not in fit_files, so that overlays, textures and refinement get
-    # the frames
-    images = [Path(p) for p in args.images] if args.landmarks else expand_videos(args.images, args.frames)
-    res, report = fit_files(images, args.landmarks, model=model, camera=args.camera,
-                            focal_px=args.focal_px, n_iterations=args.n_iterations, robust=args.robust,
-                            shared_identity=not args.independent,
-                            landmark_detector=args.landmark_detector, face_detector=args.face_detector,
-                            landmark_std_px=args.landmark_std, video_frames=args.frames)
-    images = _fitted(images, report)
-    pictures = [getattr(p, "image", p) for p in images]   # video frames: their pixels
+    refine_options = None
     if args.refine:
-        res, report = _refine(args, res, report, images, weights)
-    if args.overlay:  # first: drawing is the likeliest step to fail
-        from ..overlay import write_overlays
-
-        style = None if args.overlay_style == "none" else args.overlay_style
-        report["overlays"] = [str(p) for p in write_overlays(args.overlay, res, pictures, mesh=style,
-                                                                   crop=args.overlay_crop)]
-    texture = None
-    if args.out_texture:
-        from ..texture import extract_texture
-
-        texture = extract_texture(res, pictures, size=args.texture_size)
-        report["texture"] = {"path": str(args.out_texture), "size": args.texture_size,
-                             "observed": float(texture.observed[texture.layout].mean()),
-                             "mirrored": float(texture.mirrored[texture.layout].mean()),
-                             "runtime_ms": texture.runtime_ms}
-    write_fit(res, report, mesh=args.out_mesh, report_path=args.report, texture=texture,
-              texture_path=args.out_texture)
+        refine_options = {"steps": args.steps, "weights": weights,
+                          "renderer_options": renderer_options(args.inverter)}
+    result = fit_images(args.images, args.landmarks, model=model, refine=args.refine,
+                        refine_options=refine_options, camera=args.camera, focal_px=args.focal_px,
+                        n_iterations=args.n_iterations, robust=args.robust,
+                        shared_identity=not args.independent,
+                        landmark_detector=args.landmark_detector, face_detector=args.face_detector,
+                        landmark_std_px=args.landmark_std, video_frames=args.frames)
+    result.write(mesh=args.out_mesh, report=args.report, texture=args.out_texture, overlay=args.overlay,
+                 texture_size=args.texture_size,
+                 overlay_style=None if args.overlay_style == "none" else args.overlay_style,
+                 overlay_crop=args.overlay_crop, refine_render=args.refine_render)
+    report, res = result.report, result.fit
+    for picture, run in zip(result.pictures, report.get("refine", [])):
+        print(f"{picture.label}: refine {args.refine}: photometric loss {run['photometric_loss'][0]:.4f} -> "
+              f"{run['photometric_loss'][-1]:.4f} in {run['runtime_s']:.1f} s")
     for f in report.get("frames_skipped", []):
         print(f"{f['image']} ({f['time_s']:.3f} s): skipped, {f['reason']}")
     for f in report["frames"]:
@@ -136,38 +114,3 @@ def run(args):
           + (f" {args.report}" if args.report else "")
           + (f" {args.out_texture}" if args.out_texture else ""))
     return 0
-
-
-def _fitted(items, report) -> list:
-    """The photos and video frames of ``items`` that the fit kept (video frames without a face
-    are not), in the report's order."""
-    by_name = {getattr(item, "label", str(item)): item for item in items}
-    return [by_name[f["image"]] for f in report["frames"]]
-
-
-def _refine(args, res, report, images, weights):
-    """Photometric refinement of every frame (:func:`morphable.refinement.refine`) with the
-    loss weight overrides ``weights``."""
-    from ..detection import read_image
-    from ..refinement import refine
-
-    options = renderer_options(args.inverter)
-    runs = []
-    for i, path in enumerate(images):
-        image = path.image if hasattr(path, "image") else read_image(path)
-        res, rep, state = refine(image, res, args.refine, steps=args.steps, frame=i,
-                                 weights=weights, renderer_options=options, return_state=True)
-        runs.append(rep)
-        if i == 0 and args.refine_render:
-            import numpy as np
-
-            from ..raster import save_image_png
-
-            save_image_png(args.refine_render, np.concatenate([state.target, state.rendered], 1))
-        print(f"{getattr(path, 'label', path)}: refine {args.refine}: photometric loss {rep['photometric_loss'][0]:.4f} -> "
-              f"{rep['photometric_loss'][-1]:.4f} in {rep['runtime_s']:.1f} s")
-    kept = {k: report[k] for k in ("landmarks", "video_frames", "frames_skipped") if k in report}
-    report = res.to_dict(images=[getattr(p, "label", str(p)) for p in images])
-    report.update(kept)
-    report["refine"] = runs
-    return res, report

@@ -27,15 +27,16 @@ def add_parser(sub):
     add_fitting_arguments(p)
     p.add_argument("--independent", action="store_true",
                    help="fit the frames of a subject each on their own")
-    p.add_argument("--mesh-format", choices=("obj", "ply", "stl"), default="obj")
+    p.add_argument("--mesh-format", choices=("obj", "ply", "stl"), default="obj",
+                   help="format of each item's fit mesh (default obj)")
     return p
 
 
 def run(args):
     from ..batch import read_manifest, run_batch
     from ..detection import resolve_detectors
-    from ..fitting.files import fit_item
     from ..io.registry import load_model
+    from ..pipeline import fit_item
 
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")

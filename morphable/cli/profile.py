@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .common import add_detector_arguments, add_model_argument, model_from
+from .common import add_detector_arguments, add_model_argument, check_outputs, model_from
 
 
 def add_parser(sub):
@@ -46,11 +46,10 @@ def labels_json(out: dict) -> dict:
 def run(args):
     import json
 
-    from ..fitting.files import fit_files
     from ..io.atomic import atomic_path
+    from ..pipeline import fit_images
     from ..profiling import MAX_PITCH_DEG, MAX_YAW_DEG, profile_photo
     from ..raster import save_image_png
-    from .bake import check_outputs
 
     check_outputs(args.out)
     if args.labels:
@@ -70,8 +69,8 @@ def run(args):
     model = model_from(args)
     if model.uv is None:
         raise InputError(f"{args.model}: the model has no UV coordinates, so the face cannot be textured")
-    fit, _ = fit_files([args.image], [args.landmarks] if args.landmarks else None, model=model,
-                       landmark_detector=args.landmark_detector, face_detector=args.face_detector)
+    fit = fit_images(args.image, args.landmarks, model=model, landmark_detector=args.landmark_detector,
+                     face_detector=args.face_detector).fit
     out = profile_photo(args.image, fit, args.yaw, args.pitch, texture_size=args.texture_size)
     save_image_png(args.out, out["image"] / 255.0)
     if args.labels:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .bake import add_camera_arguments, add_source_arguments, check_outputs, source_and_camera
+from .common import add_camera_arguments, add_source_arguments, check_outputs, source_and_camera
 
 
 def _numbers(text, n, what):
@@ -18,22 +18,28 @@ def _numbers(text, n, what):
 
 
 def add_parser(sub):
+    from ..raster.shaded_images import DEFAULT_AMBIENT, DEFAULT_LIGHT
+
     p = sub.add_parser("render", help="shaded image of a mesh (vertex colour or texture, "
                        "SH or directional light)")
     add_source_arguments(p)
     add_camera_arguments(p, 512)
     p.add_argument("--texture", help="texture image for the mesh's UVs (default: the OBJ's material map)")
     p.add_argument("--no-texture", action="store_true", help="ignore the OBJ's material map")
-    p.add_argument("--color", default="0.75,0.75,0.75", help="surface colour r,g,b in [0, 1]")
+    p.add_argument("--color", default="0.75,0.75,0.75", help="surface colour r,g,b in [0, 1] (default 0.75,0.75,0.75)")
     p.add_argument("--light", action="append", metavar="X,Y,Z[,I]|none",
                    help="directional light towards X,Y,Z in the camera frame (+z to the viewer), "
                         "intensity I (default 0.75); repeatable; write --light=-1,0,1 for a "
-                        "negative first number; none: unlit, the colour or texture as it is")
-    p.add_argument("--ambient", type=float, default=0.3, help="ambient light with --light")
+                        "negative first number; none: unlit, the colour or texture as it is "
+                        "(default: one light towards "
+                        f"{','.join(f'{x:.2f}' for x in DEFAULT_LIGHT.direction)}, intensity "
+                        f"{float(DEFAULT_LIGHT.color[0]):g})")
+    p.add_argument("--ambient", type=float, default=DEFAULT_AMBIENT,
+                   help=f"ambient light with --light (default {DEFAULT_AMBIENT:g})")
     p.add_argument("--sh", metavar="C0,...,C8", help="9 (grey) or 27 (RGB, per coefficient r,g,b) "
                    "SH coefficients instead of --light; 1,0,...,0 is uniform white")
     p.add_argument("--shadows", action="store_true", help="cast shadows of the directional lights")
-    p.add_argument("--background", default="1,1,1", help="r,g,b in [0, 1], or an image of the output size")
+    p.add_argument("--background", default="1,1,1", help="r,g,b in [0, 1], or an image of the output size (default 1,1,1: white)")
     p.add_argument("--out", required=True, help="output PNG")
     return p
 

@@ -6,14 +6,15 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.mesh import read_mesh
-from ..io.registry import load_model
+from ..io.registry import DEFAULT_MODEL, load_model
 from .common import add_model_argument
 
 
 def add_parser(sub):
     p = sub.add_parser("show", help="view a mesh or fit.json (pyvista; --screenshot works headless)")
     p.add_argument("mesh", metavar="MESH_OR_FIT", help="mesh file (.obj .ply .stl) or a fit report .json")
-    add_model_argument(p)
+    add_model_argument(p, text="the model whose landmark vertices --landmarks draws on a mesh (a fit "
+                               f"report brings its own) (default {DEFAULT_MODEL})")
     p.add_argument("--frame", type=int, default=0, help="frame of a multi-frame fit (default 0)")
     p.add_argument("--image", help="photo drawn as the background")
     p.add_argument("--scan", help="scan mesh overlaid semi-transparent (same units and frame)")
@@ -23,9 +24,10 @@ def add_parser(sub):
     p.add_argument("--texture", help="texture image for the mesh's UVs (default: the OBJ's "
                                      "material map; a fit report: e.g. fit --out-texture's)")
     p.add_argument("--no-texture", action="store_true", help="ignore the OBJ's material map")
-    p.add_argument("--view", default="front", choices=["front", "left", "right", "top"])
+    p.add_argument("--view", default="front", choices=["front", "left", "right", "top"],
+                   help="camera direction (default front)")
     p.add_argument("--screenshot", help="write a PNG instead of opening a window")
-    p.add_argument("--size", default="1024x768", help="window or screenshot size WIDTHxHEIGHT")
+    p.add_argument("--size", default="1024x768", help="window or screenshot size WIDTHxHEIGHT (default 1024x768)")
     return p
 
 

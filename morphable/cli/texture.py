@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
+from .common import check_outputs
 
 
 def add_parser(sub):
@@ -26,7 +27,6 @@ def run(args):
 
     from ..raster.inputs import load_fit_frame, read_fit_report
     from ..texture import save_texture, texture_from_views
-    from .bake import check_outputs
 
     check_outputs(args.out, args.confidence)
     if not 8 <= args.size <= 8192:

@@ -97,8 +97,9 @@ def read_image(path) -> np.ndarray:
         raise InputError(f"{path}: cannot read image ({e})") from None
 
 
-def as_image(image) -> tuple[np.ndarray, str]:
-    """A path or an array -> ((H, W, 3) uint8 RGB, the name to put in messages).
+def as_image(image, name: str = "image") -> tuple[np.ndarray, str]:
+    """A path or an array -> ((H, W, 3) uint8 RGB, the name to put in messages: the path, or
+    ``name`` for an array).
 
     Arrays: (H, W) grey or (H, W, 3|4) colour; uint8 as is, uint16 scaled from 0-65535,
     floats from [0, 1] (or 0-255 when larger).
@@ -109,13 +110,13 @@ def as_image(image) -> tuple[np.ndarray, str]:
     if a.ndim == 2:
         a = np.repeat(a[..., None], 3, axis=-1)
     if a.ndim != 3 or a.shape[-1] not in (3, 4) or a.shape[0] == 0 or a.shape[1] == 0:
-        raise InputError(f"image: expected (H, W, 3) pixels, got {a.shape}")
+        raise InputError(f"{name}: expected (H, W, 3) pixels, got {a.shape}")
     if a.dtype.kind not in "uif" or (a.dtype.kind == "f" and not np.isfinite(a).all()):
-        raise InputError(f"image: expected finite numbers, got {a.dtype}")
+        raise InputError(f"{name}: expected finite numbers, got {a.dtype}")
     if a.dtype == np.uint16:
         a = np.round(a / 257.0)
     elif a.dtype.kind == "f" and a.max(initial=0.0) <= 1.0:
         a = a * 255.0
     if a.dtype != np.uint8:
         a = np.clip(a, 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(a[..., :3]), "image"
+    return np.ascontiguousarray(a[..., :3]), name

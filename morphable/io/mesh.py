@@ -8,7 +8,11 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["write_mesh", "read_mesh", "uv_unwelded", "mtl_texture_reference"]
+__all__ = ["write_mesh", "read_mesh", "uv_unwelded", "mtl_texture_reference", "mesh_format",
+           "MESH_FORMATS"]
+
+MESH_FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf")
+"""The formats :func:`write_mesh` writes, by file suffix."""
 
 
 def uv_unwelded(vertices, triangles, uv, triangle_uv):
@@ -58,9 +62,7 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
     mesh = trimesh.Trimesh(v, f, visual=visual, process=False)
     if vertex_colors is not None and visual is None:
         mesh.visual.vertex_colors = vertex_colors
-    suffix = path.suffix.lower().lstrip(".")
-    if suffix not in ("obj", "ply", "stl", "off", "glb", "gltf"):
-        raise InputError(f"{path}: unknown mesh format {path.suffix!r} (.obj .ply .stl .off .glb)")
+    suffix = mesh_format(path)
     if texture is not None and (suffix != "obj" or uv is None):
         raise InputError(f"{path}: a texture needs an .obj mesh with UV coordinates")
     with atomic_path(path) as tmp:
@@ -78,6 +80,16 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
         else:
             mesh.export(tmp, file_type=suffix)
     return path
+
+
+def mesh_format(path) -> str:
+    """The format :func:`write_mesh` writes to ``path`` (its suffix, lower case, without the
+    dot), or an InputError naming the file when it writes none by that suffix."""
+    path = Path(path)
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in MESH_FORMATS:
+        raise InputError(f"{path}: unknown mesh format {path.suffix!r} (.obj .ply .stl .off .glb)")
+    return suffix
 
 
 def mtl_texture_reference(mesh_path, texture) -> str:

@@ -37,7 +37,7 @@ def vertex_colors(vertices, triangles, camera, image, symmetry=None, min_facing:
 
     Examples
     --------
-    >>> res = fit_files(["face.png"], ["face.pts"], model=sfm)[0]  # doctest: +SKIP
+    >>> res = fit_images("face.png", "face.pts", model=sfm).fit  # doctest: +SKIP
     >>> colors, seen = vertex_colors(res.vertices(0), sfm.triangles, res.cameras[0],
     ...                              "face.png", sfm.symmetry)  # doctest: +SKIP
     >>> colors.shape, seen.mean() > 0.5  # doctest: +SKIP

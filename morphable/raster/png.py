@@ -15,7 +15,21 @@ from ..errors import InputError
 from ..io.atomic import atomic_path
 
 __all__ = ["save_normal_png", "save_depth_png", "save_mask_png", "save_image_png",
-           "read_depth_png"]
+           "read_depth_png", "check_png_path"]
+
+
+def check_png_path(path):
+    """``path`` as a Path, or an InputError unless it names a .png in an existing folder (to
+    call before any work, so that a bad output path leaves no partial outputs)."""
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise InputError(f"{path}: output must be a .png file")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"{path}: output folder {folder} does not exist")
+    return path
 
 
 def _write(path, array, pnginfo=None):

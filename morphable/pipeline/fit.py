@@ -1,0 +1,264 @@
+"""One person's fit to photos, video frames and arrays: :func:`fit_images` and its
+:class:`ImageFit`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .inputs import Picture, check_landmarks, detect_points, pictures, read_landmark_file
+
+__all__ = ["fit_images", "ImageFit", "one_landmark_set"]
+
+
+@dataclass
+class ImageFit:
+    """The fit of one person's face in N pictures, what :func:`fit_images` returns.
+
+    Attributes
+    ----------
+    fit : :class:`~morphable.fitting.FitResult`
+        The fit of the N frames: identity, expression and camera per frame (mm, degrees).
+    report : dict
+        JSON-ready: :meth:`FitResult.to_dict <morphable.fitting.FitResult.to_dict>` (frames
+        named by their pictures' labels) plus ``landmarks`` (each frame's landmark file, or the
+        detector that found its points); with videos ``video_frames`` (each fitted frame's
+        video, index and time in seconds) and ``frames_skipped``; when refined ``refine`` (each
+        frame's refinement report).
+    pictures : list of N :class:`~morphable.pipeline.inputs.Picture`
+        The fitted frames in the fit's order (a video's frames without a face are not among
+        them): their labels, sizes, and pixels or photo paths.
+    refinements : list of N :class:`~morphable.refinement.Refinement`, or empty
+        Each frame's refinement state when the fit was refined by a renderer's inversion (to
+        re-render it: :func:`morphable.refinement.edit`).
+    """
+
+    fit: object
+    report: dict
+    pictures: list
+    refinements: list = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return self.fit.n_frames
+
+    def vertices(self, frame: int = 0) -> np.ndarray:
+        """(V, 3) float32, mm: the fitted mesh of ``frame`` (its identity and expression)."""
+        return self.fit.vertices(frame)
+
+    def mesh_vertices(self) -> np.ndarray:
+        """(V, 3) float32, mm: the mesh :meth:`write` writes: the fitted frame's for one
+        picture, the shared (or average) identity without expression for several."""
+        return self.vertices(0) if self.n_frames == 1 else self.fit.neutral_vertices()
+
+    def images(self) -> list:
+        """The N frames' pictures as the texture and overlays take them: photo paths (read
+        when used), else (H, W, 3) uint8 pixels."""
+        return [p.image for p in self.pictures]
+
+    def write(self, mesh=None, report=None, texture=None, overlay=None, *, texture_size: int = 512,
+              overlay_style: str | None = "shaded", overlay_crop: float | None = None,
+              refine_render=None) -> list:
+        """Write the fit's files, all or nothing: every output's folder is checked first, each
+        file is written atomically, and when one fails those already written are removed.
+
+        Parameters
+        ----------
+        mesh : path, optional
+            The mesh (:meth:`mesh_vertices`; .obj with UVs, .ply, .stl, .off, .glb); with a
+            texture an .obj names it through a material library ``NAME.mtl`` beside it.
+        report : path, optional
+            The JSON report: :attr:`report`, plus ``overlays`` (the paths written) and
+            ``texture`` (its path, size, fractions observed and mirrored, runtime).
+        texture : path, optional
+            A .png UV texture from the pictures (:func:`morphable.texture.extract_texture`,
+            ``texture_size`` texels per side; the model needs UVs).
+        overlay : path, optional
+            .png/.jpg: each picture with the fitted mesh (``overlay_style``: "shaded",
+            "wireframe" or None for landmarks only) and the landmarks
+            (:func:`morphable.overlay.draw_overlay`; ``overlay_crop``: cut to the face widened
+            by that fraction of its size); several frames: ``NAME_0.png``, ``NAME_1.png``, ...
+        refine_render : path, optional
+            .png: the first frame's face crop next to its refined render (a refined fit only).
+
+        Returns
+        -------
+        list of Path, the files written.
+        """
+        from .outputs import write_outputs
+
+        return write_outputs(self, mesh, report, texture, overlay, texture_size=texture_size,
+                             overlay_style=overlay_style, overlay_crop=overlay_crop,
+                             refine_render=refine_render)
+
+
+def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None,
+               refine_options: dict | None = None, camera: str = "affine", focal_px=None,
+               n_iterations: int = 4, robust=None, shared_identity: bool = True,
+               landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0,
+               video_frames: int = 5) -> ImageFit:
+    """Fit a model to one person's face in photos, videos and image arrays, from landmarks
+    given or detected.
+
+    Parameters
+    ----------
+    images : a photo path, a video path, an (H, W, 3) array or a
+        :class:`~morphable.video.VideoFrame`, or a list of them
+        Photos are read from their files (only their header where landmarks are given); arrays
+        are uint8, uint16 or float in [0, 1] (:func:`morphable.detection.images.as_image`);
+        each video gives ``video_frames`` frames spread uniformly
+        (:func:`morphable.video.sample_frames`).
+    landmarks : None, or one entry per image (a single one for a single image)
+        A landmark file (:func:`~morphable.pipeline.inputs.read_landmark_file`: iBUG ``.pts``
+        or ``.ljson``, 68 points; face-mesh ``.npy``/``.json``, 478), an array of (68, 2) or
+        (478, 2) pixels (0-based, x right, y down), or None: detected. A video's frames are
+        always detected (their entry must be None).
+    model : MorphableModel or name/path for :func:`morphable.load_model`
+    refine : None, or the name of a refinement after the landmark fit
+        (:func:`~morphable.pipeline.refine.refine_fit`: a renderer's name, "classical" or
+        "gar", inverts that renderer on each frame; needs the neural extra)
+    refine_options : dict, keywords of the refinement (e.g. ``{"steps": 100}``)
+    camera, focal_px, n_iterations, robust : see :func:`morphable.fitting.fit_landmarks`
+    shared_identity : bool, one identity for all pictures (False: each fitted on its own)
+    landmark_detector, face_detector : see :func:`morphable.detection.detect`
+    landmark_std_px : float > 0 or "auto", px, the noise of points without a σ of their own
+    video_frames : int >= 1, frames sampled from each video (all of a shorter one)
+
+    A detector that gives each point a σ (the landmark network) has its frames fitted with
+    those σ (:func:`morphable.detection.result.landmark_noise`). Frames whose landmarks are
+    detected are fitted with ``model_std_mm``
+    :data:`~morphable.fitting.noise.DETECTED_MODEL_STD_MM` (a detector's errors are
+    face-shaped), the others with the fitter's default. A video frame without a face is
+    skipped (listed in the report's ``frames_skipped``); a photo or array without one, or a
+    video without a face in any sampled frame, is an error.
+
+    Returns
+    -------
+    ImageFit: the fit, its report and the fitted pictures. The face fitted is each picture's
+    largest (what :func:`morphable.detection.detect` finds), all as one person.
+
+    Raises
+    ------
+    InputError naming the input for a bad file, array or setting; FitError when a photo shows
+    no face.
+
+    Examples
+    --------
+    >>> import tempfile, morphable
+    >>> photo = "../shared/data/images/image_0010.png"
+    >>> result = morphable.fit_images(photo, photo.replace(".png", ".pts"))
+    >>> print(f"{result.fit.landmark_rmse_px[0]:.2f} px, yaw {result.fit.euler_deg[0, 0]:.1f} deg")
+    5.84 px, yaw -26.7 deg
+    >>> folder = tempfile.mkdtemp()
+    >>> [p.name for p in result.write(mesh=f"{folder}/fit.obj", report=f"{folder}/fit.json")]
+    ['fit.obj', 'fit.json']
+    """
+    from ..detection import describe
+    from ..errors import FitError
+    from ..fitting import fit_landmarks
+    from ..fitting.options import detection_settings
+
+    images = _as_list(images, 3)
+    if not images:
+        raise InputError("no images given")
+    given = _as_list(landmarks, 2) if landmarks is not None else []
+    if len(given) == 0:
+        given = [None] * len(images)
+    if len(given) != len(images):
+        raise InputError(f"landmarks: {len(given)} given for {len(images)} images")
+    if int(n_iterations) < 0:
+        raise InputError(f"n_iterations must be >= 0, got {n_iterations}")
+    if int(video_frames) < 1:
+        raise InputError(f"video frames must be >= 1, got {video_frames}")
+    describe(landmark_detector, face_detector)  # a bad choice fails before any work
+    items, sources = [], []
+    for i, (item, lm) in enumerate(zip(images, given)):
+        expanded = pictures(item, i, video_frames)
+        if lm is not None and (len(expanded) != 1 or expanded[0].frame is not None):
+            raise InputError(f"{item}: landmark files are for photos; a video's frames are detected")
+        items += expanded
+        sources += [lm] * len(expanded)
+    points, kept, found, skipped = [], [], [], []
+    for picture, lm in zip(items, sources):
+        if lm is None:
+            try:
+                found.append(detect_points(picture, landmark_detector, face_detector))
+            except FitError:
+                if picture.frame is None:
+                    raise
+                # a video's frame without a face (turned away, occluded) is skipped, not fatal
+                skipped.append({"image": picture.label, "time_s": round(picture.frame.time_s, 4),
+                                "reason": "no face found"})
+                continue
+            points.append(found[-1].points)
+        else:
+            points.append(_given_points(lm, picture))
+            found.append(None)
+        kept.append((picture, lm))
+    _check_every_video_kept(items, [p for p, _ in kept])
+    lms = one_landmark_set(points)
+    if isinstance(model, (str, Path)):
+        from ..io.registry import load_model
+
+        model = load_model(str(model))
+    res = fit_landmarks(model, lms, np.array([p.size for p, _ in kept], dtype=np.float64), camera=camera,
+                        focal_px=focal_px, n_iterations=int(n_iterations),
+                        robust=robust, shared_identity=shared_identity,
+                        **detection_settings(found, np.shape(lms)[1], landmark_std_px))
+    fitted = [p for p, _ in kept]
+    # "auto" may have found a photo's face with the network where the face mesh found none
+    extra = {"landmarks": [_source(lm) if lm is not None else d.detector for (_, lm), d in zip(kept, found)]}
+    if any(p.frame is not None for p in items):
+        extra["video_frames"] = [{"image": p.label, "video": p.frame.source, "frame": p.frame.index,
+                                  "time_s": round(p.frame.time_s, 4)} for p in fitted if p.frame is not None]
+        extra["frames_skipped"] = skipped
+    states = []
+    if refine is not None:
+        from .refine import refine_fit
+
+        res, runs, states = refine_fit(res, fitted, refine, **(refine_options or {}))
+        extra["refine"] = runs
+    report = {**res.to_dict(images=[p.label for p in fitted]), **extra}
+    return ImageFit(fit=res, report=report, pictures=fitted, refinements=states)
+
+
+def _as_list(value, item_ndim: int) -> list:
+    """One input or a list of them -> a list: a list or tuple holds inputs, so does an array of
+    more than ``item_ndim`` dimensions (an image has 3 or 2, landmarks 2); anything else is one."""
+    if isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim > item_ndim):
+        return list(value)
+    return [value]
+
+
+def _given_points(lm, picture: Picture) -> np.ndarray:
+    """A picture's landmarks given as a file or an array, checked against its size."""
+    if isinstance(lm, (str, Path)):
+        return read_landmark_file(lm, picture.size)
+    return check_landmarks(lm, picture.size, f"landmarks of {picture.label}")
+
+
+def _source(lm) -> str:
+    """How the report names landmarks that were given: the file, or "array"."""
+    return str(lm) if isinstance(lm, (str, Path)) else "array"
+
+
+def _check_every_video_kept(items, kept) -> None:
+    """InputError naming a video none of whose sampled frames showed a face."""
+    sources = {p.frame.source for p in kept if p.frame is not None}
+    for video in dict.fromkeys(p.frame.source for p in items if p.frame is not None):
+        if video not in sources:
+            n = sum(1 for p in items if p.frame is not None and p.frame.source == video)
+            raise InputError(f"{video}: no face found in any of the {n} sampled frames")
+
+
+def one_landmark_set(points: list) -> np.ndarray:
+    """(N, L, 2): the frames' landmarks as one set. A fit takes one landmark scheme, so when
+    68-point and 478-point frames are mixed the face mesh's go through
+    :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`."""
+    if len({len(p) for p in points}) == 1:
+        return np.stack(points)
+    from ..detection.facemesh import to_ibug68
+
+    return np.stack([p if len(p) == 68 else to_ibug68(p) for p in points])
