@@ -159,7 +159,7 @@ def main(argv=None) -> int:
                                 description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True, help="the real pack (neural.gar.real_faces)")
     p.add_argument("--report", required=True, help="output JSON")
-    p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/weights)")
+    p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/gar/weights)")
     p.add_argument("--root", help="the shared data folder (default: $MORPHABLE_DATA or ../shared/data)")
     p.add_argument("--aflw", type=int, help="AFLW2000-3D photos (default all; 0 skips)")
     p.add_argument("--no-london", action="store_true", help="skip R and dlib on the London set")

@@ -317,7 +317,7 @@ def main(argv=None) -> int:
                         "'none' to leave it out)")
     p.add_argument("--inception", help="TorchScript Inception-v3 features (clean-fid's / "
                                        "torch-fidelity's file) for fid_inception")
-    p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/weights)")
+    p.add_argument("--aux-dir", help="folder with aux_*.pt (default: neural/gar/weights)")
     p.add_argument("--grid", help="Figure-3-like PNG (default: beside the report)")
     p.add_argument("--raw", action="store_true",
                    help="checkpoints: evaluate the raw generator, not its moving average")

@@ -83,7 +83,7 @@ def w300_photos(data) -> list:
 
 def texture_bank(photos, model="sfm", size: int = 256, cache=None) -> tuple:
     """UV textures of ``model`` extracted from face photos: each photo fitted with face-mesh
-    landmarks (:func:`morphable.fitting.files.fit_files`) and textured
+    landmarks (:func:`morphable.pipeline.fit_images`) and textured
     (:func:`morphable.texture.extract_texture`).
 
     Parameters
@@ -111,14 +111,14 @@ def texture_bank(photos, model="sfm", size: int = 256, cache=None) -> tuple:
                     return z["textures"], z["names"], list(z["failures"])
         except (OSError, ValueError, KeyError, EOFError):
             log.warning("%s: unreadable texture cache, extracting again", cache)
-    from morphable.fitting.files import fit_files
+    from morphable.pipeline import fit_images
     from morphable.texture import extract_texture
 
     textures, kept, failures = [], [], []
     t0 = time.perf_counter()
     for p in photos:
         try:
-            res, _ = fit_files([p], model=model, landmark_detector="facemesh")
+            res = fit_images(p, model=model, landmark_detector="facemesh").fit
             tex = extract_texture(res, [p], size=size)
         except (FitError, InputError) as e:
             failures.append(f"{p.name}: {str(e).splitlines()[0]}")

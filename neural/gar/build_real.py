@@ -115,7 +115,7 @@ def fit_photo(item: dict, model: str = "sfm", detector: str = "auto") -> dict:
     from morphable.detection import describe, detect_landmarks, read_image
     from morphable.detection.facemesh import to_ibug68
     from morphable.fitting import fit_landmarks
-    from morphable.fitting.files import read_landmark_file
+    from morphable.pipeline import read_landmark_file
     from morphable.fitting.noise import DETECTED_MODEL_STD_MM, MODEL_STD_MM
 
     t0 = time.perf_counter()
