@@ -65,6 +65,8 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
+from .peers_3ddfa import add_dir_argument, unavailable
+
 __all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner",
            "refined_methods", "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w",
            "box_size", "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles",
@@ -405,9 +407,7 @@ def main(argv=None):
     p.add_argument("--boxes", choices=("detect", "dataset"), default="detect",
                    help="detect: each method finds the face itself; dataset: every method gets "
                         "the box of the ground-truth points (no face detection)")
-    p.add_argument("--3ddfa-dir", dest="ddfa_dir", type=Path, default=None,
-                   help="folder of 3DDFA-V2's released files for the 3ddfa-v2 method (default: "
-                        "$MORPHABLE_3DDFA_DIR; research use, evaluation/peers_3ddfa.py lists them)")
+    add_dir_argument(p)
     p.add_argument("--threads", type=int, default=None, help="torch's threads (default: its own choice)")
     p.add_argument("--model", default="sfm")
     p.add_argument("--data", type=Path, default=None, help="shared data folder (default: $MORPHABLE_DATA "
@@ -417,8 +417,6 @@ def main(argv=None):
     a = p.parse_args(argv)
     configure(verbosity(a))
     from morphable import load_model
-
-    from .peers_3ddfa import unavailable
 
     for m in PEER_METHODS:
         why = unavailable(a.ddfa_dir) if m in a.methods else None

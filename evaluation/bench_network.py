@@ -14,7 +14,9 @@ network's σ is right).
 as the box (the dataset's box) and with its own face detection (``face_detector="auto"``),
 NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the ground
 truth's box, per |yaw| bin and their mean); faces missed; and for the default options how
-much of the error is a bias all faces share (:func:`bias_table`).
+much of the error is a bias all faces share (:func:`bias_table`). With the dataset's box, a
+row of the peer 3DDFA-V2 (its released MobileNet-0.5, :mod:`evaluation.peers_3ddfa`, files from
+``--3ddfa-dir`` or ``$MORPHABLE_3DDFA_DIR``; one printed line says when it is skipped).
 
 Median wall ms per face on one torch thread (the photo decoded first, not timed).
 
@@ -30,6 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
+
+from .peers_3ddfa import add_dir_argument
 
 __all__ = ["main", "OPTIONS", "bias_table", "held_out"]
 
@@ -136,12 +140,16 @@ def _aflw2000(args) -> None:
     from neural.landmarks.detector import MIRROR, PASSES, NetworkDetector
 
     from .bench_alignment import box_size, data_root, dataset_boxes, load_aflw2000, nme
+    from .peers_3ddfa import ThreeDDFA, unavailable
 
     d = load_aflw2000(data_root(), args.n)
     gt, yaw = d["gt"], d["yaw_deg"]
     norm = box_size(gt)
     boxes = dataset_boxes(gt)
     images = [read_image(path) for path in d["paths"]]
+    why = unavailable(args.ddfa_dir)
+    if why:
+        print(f"3ddfa-v2: skipped, {why}")
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
     detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
@@ -156,6 +164,16 @@ def _aflw2000(args) -> None:
               flush=True)
         if (passes, mirror) == (PASSES, MIRROR):
             default = pred
+    if not why:
+        peer = ThreeDDFA(args.ddfa_dir)
+        peer.ibug68(images[0], boxes[0])                   # warm-up
+        pred, ms = np.full(gt.shape, np.nan), []
+        for i, img in enumerate(images):
+            t = time.perf_counter()
+            pred[i] = peer.ibug68(img, boxes[i])
+            ms.append((time.perf_counter() - t) * 1e3)
+        print(_row("68 points' extent, 3DDFA-V2 MobileNet-0.5 (released)", nme(pred, gt, norm), yaw, ms),
+              flush=True)
     for (passes, mirror), det in detectors.items():
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
         for i, img in enumerate(images):
@@ -187,6 +205,7 @@ def main(argv=None) -> int:
     p.add_argument("--packs", default=str(PACKS), help="the folder of the landmark packs "
                    "(validation; default landmark_data/)")
     p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
+    add_dir_argument(p)
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     if args.set == "validation":

@@ -43,7 +43,7 @@ import numpy as np
 from morphable.errors import InputError
 
 __all__ = ["DIR_ENV", "WEIGHTS_FILE", "PARAM_STATS_FILE", "BFM_FILE", "KEYPOINT_FILES", "INPUT_PX",
-           "N_SHAPE", "N_EXPRESSION", "BLOCKS", "peer_dir", "unavailable", "mobilenet_v1",
+           "N_SHAPE", "N_EXPRESSION", "BLOCKS", "peer_dir", "add_dir_argument", "unavailable", "mobilenet_v1",
            "load_weights", "load_param_stats", "load_keypoint_bases", "crop_box", "crop",
            "keypoints_in_crop", "crop_to_image", "ThreeDDFA"]
 
@@ -69,6 +69,14 @@ def peer_dir(folder=None) -> Path | None:
         return Path(folder)
     env = os.environ.get(DIR_ENV)
     return Path(env) if env else None
+
+
+def add_dir_argument(parser) -> None:
+    """``--3ddfa-dir`` (``dest="ddfa_dir"``) on an argparse ``parser``: the folder of the
+    released files."""
+    parser.add_argument("--3ddfa-dir", dest="ddfa_dir", type=Path, default=None,
+                        help=f"folder of 3DDFA-V2's released files for its peer row (default: ${DIR_ENV}; "
+                             "research use, evaluation/peers_3ddfa.py lists them)")
 
 
 def unavailable(folder=None) -> str | None:
