@@ -18,7 +18,8 @@ much of the error is a bias all faces share (:func:`bias_table`). With the datas
 row of the peer 3DDFA-V2 (its released MobileNet-0.5, :mod:`evaluation.peers_3ddfa`, files from
 ``--3ddfa-dir`` or ``$MORPHABLE_3DDFA_DIR``; one printed line says when it is skipped).
 
-Median wall ms per face on one torch thread (the photo decoded first, not timed).
+Median wall ms per face on one torch thread (the photo decoded first, not timed; with the
+dataset's box each photo read by every option in turn).
 
     python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_c/landmarks.pt
     python -m evaluation.bench_network --set aflw2000 --n 100
@@ -153,27 +154,23 @@ def _aflw2000(args) -> None:
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
     detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
-    default = None
-    for (passes, mirror), det in detectors.items():
-        pred, ms = np.full(gt.shape, np.nan), []
-        for i, img in enumerate(images):
-            t = time.perf_counter()
-            pred[i] = det.detect(img, box=boxes[i]).ibug68
-            ms.append((time.perf_counter() - t) * 1e3)
-        print(_row(f"68 points' extent, {_option(passes, mirror)}", nme(pred, gt, norm), yaw, ms),
-              flush=True)
-        if (passes, mirror) == (PASSES, MIRROR):
-            default = pred
+    readers = {f"68 points' extent, {_option(*opt)}": (lambda img, box, det=det: det.detect(img, box=box).ibug68)
+               for opt, det in detectors.items()}
     if not why:
-        peer = ThreeDDFA(args.ddfa_dir)
-        peer.ibug68(images[0], boxes[0])                   # warm-up
-        pred, ms = np.full(gt.shape, np.nan), []
-        for i, img in enumerate(images):
+        readers["68 points' extent, 3DDFA-V2 MobileNet-0.5 (released)"] = ThreeDDFA(args.ddfa_dir).ibug68
+    for read in readers.values():
+        read(images[0], boxes[0])                            # warm-up
+    pred = {k: np.full(gt.shape, np.nan) for k in readers}
+    ms = {k: [] for k in readers}
+    # each photo read by every option in turn, so that a change of the machine's load falls on all
+    for i, img in enumerate(images):
+        for k, read in readers.items():
             t = time.perf_counter()
-            pred[i] = peer.ibug68(img, boxes[i])
-            ms.append((time.perf_counter() - t) * 1e3)
-        print(_row("68 points' extent, 3DDFA-V2 MobileNet-0.5 (released)", nme(pred, gt, norm), yaw, ms),
-              flush=True)
+            pred[k][i] = read(img, boxes[i])
+            ms[k].append((time.perf_counter() - t) * 1e3)
+    for k in readers:
+        print(_row(k, nme(pred[k], gt, norm), yaw, ms[k]), flush=True)
+    default = pred[f"68 points' extent, {_option(PASSES, MIRROR)}"]
     for (passes, mirror), det in detectors.items():
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
         for i, img in enumerate(images):
