@@ -15,6 +15,11 @@ Methods, each run on every photo of a set:
   (``landmark_detector="fused"``, :func:`morphable.detection.fusion.fuse`), its 68 rows;
 - ``ours``: our fit with the default detector (``landmark_detector="auto"``: "fused" where
   both can run), as ``morphable fit IMAGE`` runs;
+- ``3ddfa-v2``: a peer, 3DDFA-V2's released MobileNet-0.5 (ECCV 2020) run from its released
+  files by our own loader (:mod:`evaluation.peers_3ddfa`; the files read from ``--3ddfa-dir``
+  or ``$MORPHABLE_3DDFA_DIR``, research use; skipped with one printed line when absent), its 68
+  points from the crop of the face box: the given box, else the default detector's face box
+  (:func:`morphable.detection.detect_faces`, the same boxes our ``network`` reads);
 - ``ours-dlib``, ``ours-facemesh``, ``ours-network``, ``ours-fused``: our fit (SFM, one frame) to the detector's points,
   made as ``morphable fit`` makes it (:func:`morphable.fitting.options.detection_settings`:
   the face mesh's and the network's 478 points in the 3D convention, the network's σ); its
@@ -40,7 +45,8 @@ faces are stored once per annotated face, so "the largest face" would score anot
 dlib's shape predictor was
 trained on 300-W's training images, which include AFW: its figure there is optimistic.
 
-Times are wall ms per photo (detection, plus the fit for ``ours`` and ``ours-*``), median over the photos.
+Times are wall ms per photo (detection, plus the fit for ``ours`` and ``ours-*``), median over the photos,
+with torch on ``--threads`` threads (default: torch's own choice).
 
     python -m evaluation.bench_alignment --set aflw2000 300w --report reports/bench_alignment.json
 """
@@ -59,15 +65,21 @@ from morphable.errors import FitError, InputError, one_line_errors
 from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner", "refined_methods",
-           "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w", "box_size",
-           "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles", "run_method", "main"]
+from .peers_3ddfa import add_dir_argument, unavailable
+
+__all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner",
+           "refined_methods", "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w",
+           "box_size", "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles",
+           "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh", "ours")
 NETWORK_METHODS = ("network", "ours-network", "fused", "ours-fused")
 """The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
 :mod:`neural.landmarks.detector`), the same fused with the face mesh's; chosen by name, not run
 by default."""
+PEER_METHODS = ("3ddfa-v2",)
+"""Peers run from their released files (:mod:`evaluation.peers_3ddfa`), by default when the
+files are there."""
 
 
 def _fitted(method: str) -> bool:
@@ -232,7 +244,7 @@ def refine_options(args) -> dict:
 
 def run_method(method: str, paths, model=None, convention: str = "2d", boxes=None,
                steps: int = 100, renderer_options: dict | None = None,
-               loss_weights: dict | None = None, given_boxes=None) -> dict:
+               loss_weights: dict | None = None, given_boxes=None, peer_dir=None) -> dict:
     """Run ``method`` (:data:`METHODS`, :data:`REFINED`: ``steps`` Adam steps of the
     renderer made with ``renderer_options[name]``, e.g. ``{"gar": {"weights": path}}``) on every photo
     (``paths``: photo paths or (H, W, 3) uint8 arrays): ``pred`` (N, 68, 2) px (NaN rows: no face),
@@ -241,7 +253,9 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     detector's face that overlaps the annotated one most (IoU >= 0.3, else a failure), each
     detector with its own face detector's box (dlib's shape predictor expects its detector's
     framing); otherwise the largest face found. ``given_boxes`` (N, 4) px: no face detection,
-    each photo's landmarks detected in its given box (the dataset's box protocol)."""
+    each photo's landmarks detected in its given box (the dataset's box protocol). ``3ddfa-v2``
+    (:data:`PEER_METHODS`) reads its files from ``peer_dir`` (default ``$MORPHABLE_3DDFA_DIR``)
+    and takes the default detector's face boxes."""
     from morphable.detection import detect, detect_faces, detect_ibug68, detect_landmarks
     from morphable.detection.boxes import iou
     from morphable.detection.images import as_image
@@ -250,7 +264,12 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
 
     method, _, renderer = method.partition("+")
     fitted = _fitted(method)
-    detector = "auto" if method == "ours" else method.removeprefix("ours-")
+    peer = None
+    if method in PEER_METHODS:
+        from .peers_3ddfa import ThreeDDFA
+
+        peer = ThreeDDFA(peer_dir)
+    detector = "auto" if method == "ours" or peer else method.removeprefix("ours-")
     refined = refiner(renderer, steps, renderer_options, loss_weights)
     N = len(paths)
     pred = np.full((N, 68, 2), np.nan)
@@ -258,7 +277,10 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
     euler = np.full((N, 3), np.nan)
     errors = {}
     try:
-        detect_landmarks(as_image(paths[0])[0], landmark_detector=detector)  # warm-up (model load)
+        first = as_image(paths[0])[0]
+        detect_landmarks(first, landmark_detector=detector)  # warm-up (model load)
+        if peer:
+            peer.ibug68(first, (0, 0, first.shape[1], first.shape[0]))
     except FitError:
         pass
     for i, p in enumerate(paths):
@@ -273,6 +295,11 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 if not len(faces) or overlap.max() < 0.3:
                     raise FitError(f"{name}: no detected face on the annotated one")
                 box = faces[int(np.argmax(overlap))]
+            if peer and box is None:
+                faces = detect_faces(img, landmark_detector=detector)
+                if not len(faces):
+                    raise FitError(f"{name}: no face found")
+                box = faces[0]                          # the largest
             if fitted:
                 found = detect(img, landmark_detector=detector, box=box)
                 res = fit_landmarks(model, found.points, (img.shape[1], img.shape[0]),
@@ -280,6 +307,8 @@ def run_method(method: str, paths, model=None, convention: str = "2d", boxes=Non
                 res = refined(img, res)
                 pred[i] = res.landmarks_68_px(convention)[0]
                 euler[i] = res.euler_deg[0]
+            elif peer:
+                pred[i] = peer.ibug68(img, box)
             else:
                 pred[i] = detect_ibug68(img, landmark_detector=detector, box=box)
         except (FitError, InputError) as e:
@@ -295,13 +324,14 @@ def dataset_boxes(gt) -> np.ndarray:
     return np.concatenate([np.nanmin(gt, 1), np.nanmax(gt, 1)], 1)
 
 
-def _aflw2000(methods, root, n, model, box_source="detect", **refine) -> dict:
+def _aflw2000(methods, root, n, model, box_source="detect", peer_dir=None, **refine) -> dict:
     d = load_aflw2000(root, n)
     norm = box_size(d["gt"])
     out = {"photos": len(d["paths"]), "methods": {}, "boxes": box_source}
     given = dataset_boxes(d["gt"]) if box_source == "dataset" else None
     for m in methods:
-        r = run_method(m, d["paths"], model, convention="3d", given_boxes=given, **refine)
+        r = run_method(m, d["paths"], model, convention="3d", given_boxes=given, peer_dir=peer_dir,
+                       **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = yaw_table(e, d["yaw_deg"])
         row["median_ms"] = float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None
@@ -315,7 +345,7 @@ def _aflw2000(methods, root, n, model, box_source="detect", **refine) -> dict:
     return out
 
 
-def _300w(methods, root, n, model, box_source="detect", **refine) -> dict:
+def _300w(methods, root, n, model, box_source="detect", peer_dir=None, **refine) -> dict:
     d = load_300w(root, n)
     norm = eye_distance(d["gt"])
     out = {"photos": len(d["paths"]), "methods": {}, "boxes": box_source,
@@ -326,7 +356,7 @@ def _300w(methods, root, n, model, box_source="detect", **refine) -> dict:
     boxes = dataset_boxes(d["gt"])
     for m in methods:
         r = run_method(m, d["paths"], model, boxes=boxes, given_boxes=boxes
-                       if box_source == "dataset" else None, **refine)
+                       if box_source == "dataset" else None, peer_dir=peer_dir, **refine)
         e = nme(r["pred"], d["gt"], norm)
         row = {"failures": int(np.isnan(e).sum()),
                "median_ms": float(np.nanmedian(r["ms"])) if np.isfinite(r["ms"]).any() else None}
@@ -370,12 +400,15 @@ def format_tables(report: dict) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--set", nargs="+", choices=("aflw2000", "300w"), default=["aflw2000"])
-    p.add_argument("--methods", nargs="+", choices=METHODS + NETWORK_METHODS + REFINED, default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS + NETWORK_METHODS + PEER_METHODS + REFINED,
+                   default=list(METHODS + PEER_METHODS))
     add_refine_arguments(p)
     p.add_argument("--n", type=int, default=None, help="photos per set (default all)")
     p.add_argument("--boxes", choices=("detect", "dataset"), default="detect",
                    help="detect: each method finds the face itself; dataset: every method gets "
                         "the box of the ground-truth points (no face detection)")
+    add_dir_argument(p)
+    p.add_argument("--threads", type=int, default=None, help="torch's threads (default: its own choice)")
     p.add_argument("--model", default="sfm")
     p.add_argument("--data", type=Path, default=None, help="shared data folder (default: $MORPHABLE_DATA "
                    "or ../shared/data)")
@@ -385,16 +418,29 @@ def main(argv=None):
     configure(verbosity(a))
     from morphable import load_model
 
+    for m in PEER_METHODS:
+        why = unavailable(a.ddfa_dir) if m in a.methods else None
+        if why:
+            print(f"{m}: skipped, {why}")
+            a.methods.remove(m)
+    if a.threads:
+        import torch
+
+        torch.set_num_threads(a.threads)
     root = a.data or data_root()
     model = load_model(a.model) if any(_fitted(m) for m in a.methods) else None
-    report = {"n": a.n, "model": a.model}
+    report = {"n": a.n, "model": a.model, "threads": a.threads}
+    if any(m in PEER_METHODS for m in a.methods):
+        from .peers_3ddfa import peer_dir
+
+        report["3ddfa_dir"] = str(peer_dir(a.ddfa_dir))
     refine = refine_options(a)
     if any("+" in m for m in a.methods):
         report.update(steps=a.steps, gar_weights=a.gar_weights, loss_weights=refine["loss_weights"])
     if "aflw2000" in a.set:
-        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, a.boxes, **refine)
+        report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, a.boxes, a.ddfa_dir, **refine)
     if "300w" in a.set:
-        report["300w"] = _300w(a.methods, root, a.n, model, a.boxes, **refine)
+        report["300w"] = _300w(a.methods, root, a.n, model, a.boxes, a.ddfa_dir, **refine)
     a.report.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(a.report) as tmp:
         tmp.write_text(json.dumps(report, indent=1))

@@ -14,9 +14,12 @@ network's σ is right).
 as the box (the dataset's box) and with its own face detection (``face_detector="auto"``),
 NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the ground
 truth's box, per |yaw| bin and their mean); faces missed; and for the default options how
-much of the error is a bias all faces share (:func:`bias_table`).
+much of the error is a bias all faces share (:func:`bias_table`). With the dataset's box, a
+row of the peer 3DDFA-V2 (its released MobileNet-0.5, :mod:`evaluation.peers_3ddfa`, files from
+``--3ddfa-dir`` or ``$MORPHABLE_3DDFA_DIR``; one printed line says when it is skipped).
 
-Median wall ms per face on one torch thread (the photo decoded first, not timed).
+Median wall ms per face on one torch thread (the photo decoded first, not timed; with the
+dataset's box each photo read by every option in turn).
 
     python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_c/landmarks.pt
     python -m evaluation.bench_network --set aflw2000 --n 100
@@ -30,6 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
+
+from .peers_3ddfa import add_dir_argument
 
 __all__ = ["main", "OPTIONS", "bias_table", "held_out"]
 
@@ -136,26 +141,36 @@ def _aflw2000(args) -> None:
     from neural.landmarks.detector import MIRROR, PASSES, NetworkDetector
 
     from .bench_alignment import box_size, data_root, dataset_boxes, load_aflw2000, nme
+    from .peers_3ddfa import ThreeDDFA, unavailable
 
     d = load_aflw2000(data_root(), args.n)
     gt, yaw = d["gt"], d["yaw_deg"]
     norm = box_size(gt)
     boxes = dataset_boxes(gt)
     images = [read_image(path) for path in d["paths"]]
+    why = unavailable(args.ddfa_dir)
+    if why:
+        print(f"3ddfa-v2: skipped, {why}")
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
     detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
-    default = None
-    for (passes, mirror), det in detectors.items():
-        pred, ms = np.full(gt.shape, np.nan), []
-        for i, img in enumerate(images):
+    readers = {f"68 points' extent, {_option(*opt)}": (lambda img, box, det=det: det.detect(img, box=box).ibug68)
+               for opt, det in detectors.items()}
+    if not why:
+        readers["68 points' extent, 3DDFA-V2 MobileNet-0.5 (released)"] = ThreeDDFA(args.ddfa_dir).ibug68
+    for read in readers.values():
+        read(images[0], boxes[0])                            # warm-up
+    pred = {k: np.full(gt.shape, np.nan) for k in readers}
+    ms = {k: [] for k in readers}
+    # each photo read by every option in turn, so that a change of the machine's load falls on all
+    for i, img in enumerate(images):
+        for k, read in readers.items():
             t = time.perf_counter()
-            pred[i] = det.detect(img, box=boxes[i]).ibug68
-            ms.append((time.perf_counter() - t) * 1e3)
-        print(_row(f"68 points' extent, {_option(passes, mirror)}", nme(pred, gt, norm), yaw, ms),
-              flush=True)
-        if (passes, mirror) == (PASSES, MIRROR):
-            default = pred
+            pred[k][i] = read(img, boxes[i])
+            ms[k].append((time.perf_counter() - t) * 1e3)
+    for k in readers:
+        print(_row(k, nme(pred[k], gt, norm), yaw, ms[k]), flush=True)
+    default = pred[f"68 points' extent, {_option(PASSES, MIRROR)}"]
     for (passes, mirror), det in detectors.items():
         pred, ms, found = np.full(gt.shape, np.nan), [], {}
         for i, img in enumerate(images):
@@ -187,6 +202,7 @@ def main(argv=None) -> int:
     p.add_argument("--packs", default=str(PACKS), help="the folder of the landmark packs "
                    "(validation; default landmark_data/)")
     p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
+    add_dir_argument(p)
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     if args.set == "validation":
