@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 OUT := out
 DATA := ../shared/data
 
-.PHONY: install demo test bench clean system-deps gar-data gar-data-128 gar-gpu landmark-data \
+.PHONY: install demo test docs bench clean system-deps gar-data gar-data-128 gar-gpu landmark-data \
 	landmark-annotated landmark-profiled landmark-synthetic landmark-train landmark-gpu
 
 install: $(STAMP)
@@ -86,6 +86,12 @@ landmark-profiled: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# the API reference from the docstrings (docs/api): HTML in build/docs/html; a warning (a
+# reference to nothing, a section numpydoc cannot parse, a module that does not import) fails it
+docs: $(STAMP)
+	$(BIN)/python docs/api/build.py build/docs
+	@echo "wrote build/docs/html/index.html"
 
 # the GPU recipe (docs/neural.md, "GPU recipe"): the 64-px, 128-px and lambda_n = 0 GARs side by
 # side, then two inverters, in about 8 minutes on one GPU; weights, recipe.json and log.txt in

@@ -9,7 +9,7 @@
 - **AFLW2000-3D** (``--root``/aflw2000, research use only, an evaluation set: never trained
   on): each photo aligned from its ground-truth 68 points (``pts68_3d``;
   :func:`neural.gar.data.align_image`), L's landmarks mapped back to the photo, 68-point NME by
-  the ground-truth box sqrt(w h) per |yaw| bin and their mean (the dataset README's
+  the ground-truth box sqrt(w h) per ``|yaw|`` bin and their mean (the dataset README's
   protocol, :mod:`evaluation.bench_alignment`); also over the landmarks the SFM defines (the
   ones synthetic training labels). Aligning from the ground truth makes this a test of L on a
   well-framed crop, not of a detector.
@@ -155,6 +155,7 @@ def evaluate(pack, aux_dir=None, root=None, aflw_n=None, london=True, dlib=True,
 
 @one_line_errors("evaluation.aux_real")
 def main(argv=None) -> int:
+    """``python -m evaluation.aux_real``: the report (the module docstring says what it holds)."""
     p = argparse.ArgumentParser(prog="python -m evaluation.aux_real",
                                 description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True, help="the real pack (neural.gar.real_faces)")

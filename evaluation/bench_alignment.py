@@ -1,4 +1,4 @@
-"""68-point alignment on real photos: AFLW2000-3D (by |yaw| bin, with head pose) and 300-W.
+"""68-point alignment on real photos: AFLW2000-3D (by ``|yaw|`` bin, with head pose) and 300-W.
 
 Methods, each run on every photo of a set:
 
@@ -31,7 +31,7 @@ Methods, each run on every photo of a set:
 
 **AFLW2000-3D** (``../shared/data/aflw2000``, the shared even half, research use only), the
 standard protocol of 3DDFA: ground truth ``pts68_3d`` x, y (0-based px); NME = mean point
-distance / sqrt(w h) of the ground-truth points' box; mean per |yaw| bin [0, 30], (30, 60],
+distance / sqrt(w h) of the ground-truth points' box; mean per ``|yaw|`` bin [0, 30], (30, 60],
 (60, 90+] degrees (the bins of 3DDFA's benchmark code) and the mean of the three. Head pose
 (fits only): mean absolute error of yaw, pitch, roll against the dataset's ``pose`` (degrees,
 our angles mapped to its sign convention, see :func:`aflw_angles`). A photo where a method
@@ -73,6 +73,7 @@ __all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "YAW_BINS", 
            "run_method", "main"]
 
 METHODS = ("dlib", "facemesh", "ours-dlib", "ours-facemesh", "ours")
+"""The methods run by default; the landmark network's are :data:`NETWORK_METHODS`."""
 NETWORK_METHODS = ("network", "ours-network", "fused", "ours-fused")
 """The landmark network's own 68 points and our fit to its 478 (the neural plugin's detector,
 :mod:`neural.landmarks.detector`), the same fused with the face mesh's; chosen by name, not run
@@ -96,7 +97,7 @@ def refined_methods(methods) -> tuple:
 REFINED = refined_methods(METHODS)
 """The refined fits of :data:`METHODS`."""
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, np.inf))
-"""|yaw| bins, degrees: [0, 30], (30, 60], (60, ...) (3DDFA's benchmark code puts the few
+"""``|yaw|`` bins, degrees: [0, 30], (30, 60], (60, ...) (3DDFA's benchmark code puts the few
 photos beyond 90 degrees into the last bin)."""
 
 
@@ -166,14 +167,14 @@ def nme(pred, gt, norm) -> np.ndarray:
 
 
 def yaw_bins(yaw_deg) -> list:
-    """The :data:`YAW_BINS` of (N,) yaw angles (degrees) -> [(lo, hi, (N,) bool), ...]: |yaw| in
+    """The :data:`YAW_BINS` of (N,) yaw angles (degrees) -> [(lo, hi, (N,) bool), ...]: ``|yaw|`` in
     (lo, hi], the first bin with 0 itself."""
     a = np.abs(np.asarray(yaw_deg))
     return [(lo, hi, (a <= hi) & ((a > lo) if lo > 0 else True)) for lo, hi in YAW_BINS]
 
 
 def yaw_table(errors, yaw_deg) -> dict:
-    """Per |yaw| bin: photos, failures (NaN errors) and the mean NME over the rest; and the mean
+    """Per ``|yaw|`` bin: photos, failures (NaN errors) and the mean NME over the rest; and the mean
     of the bins' means."""
     bins = []
     for lo, hi, sel in yaw_bins(yaw_deg):

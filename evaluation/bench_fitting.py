@@ -26,7 +26,7 @@ measurement and is stopped at its end) and with ``--landmarks 68`` (the jaw's 17
 slide along the outline), ``inner51`` (the 17 jaw points missing as NaN: 51-point
 annotations, detectors that drop the jaw) or ``facemesh478`` (the face mesh's 478 points,
 placed by the model's ``facemesh478`` sidecar, the oval sliding; eos fits the same faces'
-68 points). Faces with |yaw| <= 45, pitch and roll <= 20
+68 points). Faces with ``|yaw|`` <= 45, pitch and roll <= 20
 degrees, 1 px noise on 512 px; per setting the median wall ms per fit and the mean 3D error
 of ours and eos side by side, fit-batch images/s with 1 and 2 local workers, and two other
 paths users run in parallel: open3d ray casting of a 512 px visibility map (with Embree's
@@ -81,8 +81,8 @@ def similarity_error(fitted, truth):
 
 
 def make_sample(model, rng, max_yaw: float = 80.0, max_tilt: float = 30.0):
-    """One synthetic face: ground-truth mesh, pose (|yaw| <= ``max_yaw``, |pitch|, |roll| <=
-    ``max_tilt`` degrees), detector-like landmarks (68, 2)
+    """One synthetic face: ground-truth mesh, pose (``|yaw|`` <= ``max_yaw``, ``|pitch|``,
+    ``|roll|`` <= ``max_tilt`` degrees), detector-like landmarks (68, 2)
     (:func:`morphable.fitting.simulate_landmarks`)."""
     alpha = rng.standard_normal(model.n_identity)
     beta = rng.uniform(0, 0.7, model.n_expression) * (rng.uniform(size=model.n_expression) < 0.4)

@@ -14,14 +14,14 @@ readings' 478 points, ``mean |d|²`` px², and the network's mean σ², ``mean �
 ``packs``: the trainer's held-out faces (:func:`evaluation.bench_network.held_out`: the last 256
 faces of the synthetic SFM pack, the annotated pack's validation split, the profiled pack's), each
 read by the network and by the face mesh in the pack's face box; NME (mean distance of the
-labelled 68 points / the 68 points' extent, %) per |yaw| bin and over all faces, of the 68 rows
+labelled 68 points / the 68 points' extent, %) per ``|yaw|`` bin and over all faces, of the 68 rows
 (the network's own, the face mesh's mapped, fused) and of the SFM fit to the 478 rows as
 ``morphable fit`` makes it (scored by its projected 68 points, 3D convention). A face the face
 mesh does not find is the network's alone in the fused rows, and a failure in the face mesh's.
 
 ``florence RULE -- ARGS``: ``python -m evaluation.florence ARGS`` with that rule in the fused
 detector (the Florence protocol's ICT and SFM subjects are the fitter's validation sets; james
-is held out).
+is held out)::
 
     python -m evaluation.bench_fusion packs --report reports/bench_fusion_packs.json
     python -m evaluation.bench_fusion florence double -- --synthetic-scan ict --n-scans 6 \\

@@ -6,14 +6,14 @@ trainer holds out, each framed by its pack's face box: the last 256 faces of the
 SFM pack (exact labels), the annotated pack's validation split (AFLW's own sparse 2D
 annotations of visible points, 4-16 of the 68) and the profiled pack's (its 3D-convention
 fit, 66 points). Error: mean distance of the labelled 68 points / the 68 points' extent (the
-face box side / :data:`neural.faces.points.BOX_SCALE`), %, per |yaw| bin, their mean and the
+face box side / :data:`neural.faces.points.BOX_SCALE`), %, per ``|yaw|`` bin, their mean and the
 mean over all faces; calibration: the mean of d² / (2σ²) over the labelled points (1 when the
 network's σ is right).
 
 ``--set aflw2000`` (research use only; a test set): given the 68 ground-truth points' extent
 as the box (the dataset's box) and with its own face detection (``face_detector="auto"``),
 NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the ground
-truth's box, per |yaw| bin and their mean); faces missed; and for the default options how
+truth's box, per ``|yaw|`` bin and their mean); faces missed; and for the default options how
 much of the error is a bias all faces share (:func:`bias_table`). With the dataset's box, a
 row of the peer 3DDFA-V2 (its released MobileNet-0.5, :mod:`evaluation.peers_3ddfa`, files from
 ``--3ddfa-dir`` or ``$MORPHABLE_3DDFA_DIR``; one printed line says when it is skipped).
@@ -107,7 +107,7 @@ def _validation(args) -> None:
 
 
 def bias_table(pred, gt, norm, yaw_deg) -> str:
-    """How much of an error is a bias every face of a |yaw| bin shares (a difference of
+    """How much of an error is a bias every face of a ``|yaw|`` bin shares (a difference of
     landmark definition, say) -> a markdown table: per bin, the NME (% of ``norm``) and the
     NME after subtracting each point's mean normalised offset, the mean estimated on the
     other half of the bin's faces (even and odd rows, cross-fitted: no face scores its own

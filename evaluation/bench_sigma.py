@@ -1,7 +1,7 @@
 """Fitting with a noise per point: error against run time on synthetic faces whose landmarks
 carry a known, different noise each (what a detector that predicts its uncertainty gives).
 
-Each face (SFM, random identity and expression, |yaw| <= 60 degrees, pitch and roll <= 20,
+Each face (SFM, random identity and expression, ``|yaw|`` <= 60 degrees, pitch and roll <= 20,
 affine camera, 512 px, :func:`evaluation.bench_fitting.make_sample`) gives the face mesh's 478
 points in the 3D convention (hidden points where they project,
 :func:`morphable.labels.project_labels`). Each point draws its own noise sigma, log-uniform in
@@ -38,8 +38,9 @@ METHODS = ("one sigma", "auto", "per point")
 
 
 def noisy_points(model, sample, schemes, rng):
-    """One frame of a face: the 478 labels of ``sample`` (:func:`make_sample`) with per-point
-    noise -> points (478, 2) px, sigma (478,) px."""
+    """One frame of a face: the 478 labels of ``sample``
+    (:func:`~evaluation.bench_fitting.make_sample`) with per-point noise -> points (478, 2) px,
+    sigma (478,) px."""
     from morphable.labels import project_labels
 
     lab = project_labels(sample["verts"], model.triangles, sample["camera"], schemes)

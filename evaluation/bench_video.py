@@ -180,7 +180,7 @@ def florence_tracking(scan, model, conditions, n_frames: int, work: Path, seed: 
     Rows: ``truth`` (its rigid motion), ``track`` (prior at 4 Hz), ``track, no prior``,
     ``track, identity shared`` (prior at 4 Hz, ``identity="shared"``), ``per-frame fits``. Figures: ``shape_mm`` (mean over frames of :func:`shape_errors`),
     ``rotation_deg`` (mean angle from the true head rotation), ``jitter_mm`` (vertex
-    acceleration, :func:`vertex_jitter`, of the face turned and moved in the image plane),
+    acceleration, :func:`jitter`, of the face turned and moved in the image plane),
     ``frames_per_s``, ``frames_lost``."""
     from evaluation.videos import synthetic_video, write_rendered_video
     from morphable.camera import euler_to_matrix

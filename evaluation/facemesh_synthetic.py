@@ -20,7 +20,7 @@ they project, as AFLW2000-3D's ``pts68_3d``), normalised by sqrt(w h) of the box
 true points (AFLW2000-3D's protocol, so that the figures compare with the issue's AFLW2000-3D
 ones); SFM has no point for two inner-mouth rows (``defined68``), so 66 points are scored.
 ``nme_visible_percent``: the same over each face's visible points only (same normaliser).
-Tables by |yaw| bin [0, 30], (30, 60], (60, 90] and by light kind.
+Tables by ``|yaw|`` bin [0, 30], (30, 60], (60, 90] and by light kind.
 
 Identity signal (:func:`identity_signal`): how far the detected points move with the face's
 identity — the same face with the model's mean identity is projected too (``mean68``), and
@@ -181,7 +181,7 @@ def _row(sel, s) -> dict:
 
 
 def tables(faces, s) -> dict:
-    """Rows by |yaw| bin and by light kind, and over all faces."""
+    """Rows by ``|yaw|`` bin and by light kind, and over all faces."""
     from neural.faces.synthetic import LIGHTS
 
     a = np.abs(faces["yaw_deg"])

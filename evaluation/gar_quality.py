@@ -54,6 +54,7 @@ __all__ = ["normal_consistency", "landmark_consistency", "lambert", "synthetic_f
 
 METRICS = ("normal_consistency_deg", "landmark_consistency_px", "identity_consistency_cos",
            "fid_aux", "face_fd", "fid_inception")
+"""The report's metrics, in its order."""
 
 SKIN_RGB = (0.78, 0.57, 0.45)
 """Albedo of the ``classical`` renders of real photos' normal maps (linear RGB)."""

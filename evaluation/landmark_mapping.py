@@ -1,7 +1,7 @@
 """Checks behind the landmark packs' mappings and failure bound (docs/landmark_packs.md).
 
 ``rows``: SFM fitted to the 10 unambiguous AFLW points (brow and eye corners, mouth corners) of
-crops with |yaw| < 25 deg that have all 10; each other AFLW point compared with all 546
+crops with ``|yaw|`` < 25 deg that have all 10; each other AFLW point compared with all 546
 projected rows (mean distance over the outer brow corners' distance): the nearest rows, and
 for the nose's sides and the mouth's centre the iBUG row of that name last.
 

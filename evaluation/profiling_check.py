@@ -14,7 +14,7 @@ and NME by sqrt(w h) of the labels' box; a profiled picture where the face mesh 
 is a failure.
 
 ``pack``: ``--n`` random faces of a profiled landmark pack (:mod:`neural.faces.build_profiled`),
-the same second fit on each crop against its labels' 68 iBUG rows, by |yaw| bin of the
+the same second fit on each crop against its labels' 68 iBUG rows, by ``|yaw|`` bin of the
 labels' pose. Commands::
 
     python -m evaluation.profiling_check grid --out docs/img/profiling_yaw.png
@@ -104,7 +104,7 @@ def second_fit_error(model, image, labels68):
 
 def pack_refit(pack, n: int = 60, seed: int = 0, bins=(0, 30, 60, 90)) -> dict:
     """The check of a profiled landmark pack: ``n`` random faces of ``pack`` (its crops), each
-    through :func:`second_fit_error` against its labels' 68 iBUG rows; per |yaw| bin of the
+    through :func:`second_fit_error` against its labels' 68 iBUG rows; per ``|yaw|`` bin of the
     labels' pose (the last bin open-ended): faces, no face found, mean px error (crop px) and
     NME %."""
     import morphable

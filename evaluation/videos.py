@@ -71,6 +71,7 @@ CONDITIONS = {
     "indoor": Condition(30.0, 15.0, 2.0, 512, "lamp", blur_px=1.0, distance_mm=3000.0),
     "outdoor": Condition(45.0, 20.0, 3.0, 256, "sun", noise=0.02, distance_mm=5000.0),
 }
+"""Florence's three kinds of video by name."""
 
 
 @dataclass

@@ -24,6 +24,7 @@ GROUPS = {
     "left_eye": np.arange(42, 48),
     "mouth": np.arange(48, 68),
 }
+"""Each iBUG-68 group's points (0-based indices); sides are the subject's."""
 JAW = GROUPS["jaw"]
 DEFINITION_GROUPS = {
     "jaw": np.r_[0:8, 9:17],

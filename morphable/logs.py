@@ -5,7 +5,7 @@ results on stdout and their own messages (progress, warnings, the one-line error
 Libraries speak too: matplotlib announces "generated new fontManager" the first time it runs
 on a machine, VTK logs its fall-back to off-screen rendering, open3d prints "[Open3D WARNING]"
 lines, torch and others raise Python warnings. On a fresh machine that turned a one-line
-error into two. :func:`configure` sends all of it through :mod:`logging`, and the user's
+error into two. :func:`configure` sends all of it through ``logging``, and the user's
 verbosity decides what reaches stderr:
 
 =============  ========================  =========================================

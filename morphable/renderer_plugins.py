@@ -40,6 +40,8 @@ GROUP = "morphable.renderers"
 
 @runtime_checkable
 class Renderer(Protocol):
+    """What a renderer provides (the module docstring says what each member takes and gives)."""
+
     resolution: int | None
 
     def render(self, normal_map, appearance): ...
@@ -49,7 +51,7 @@ class Renderer(Protocol):
 
 class RendererBase:
     """The inversion hooks of a renderer, with their defaults: the appearance starts at
-    :meth:`default_appearance`, nothing of it moves, the photometric terms compare the face
+    ``default_appearance``, nothing of it moves, the photometric terms compare the face
     pixels, no prior, no constraint, no feature network. Appearance dicts hold (1, ...)
     tensors or lists of them (e.g. per-layer noise)."""
 

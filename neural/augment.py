@@ -32,6 +32,7 @@ import torch.nn.functional as F
 __all__ = ["POLICIES", "DEFAULT_POLICY", "parse_policy", "diff_augment"]
 
 POLICIES = ("color", "translation", "cutout")
+"""The augmentations a policy can name (:func:`parse_policy`)."""
 DEFAULT_POLICY = "color,translation,cutout"
 
 

@@ -160,6 +160,8 @@ class TrainingRun:
         return self.step
 
     def state_dict(self) -> dict:
+        """What a checkpoint holds besides the step to resume the run (the subclass's networks,
+        optimisers and config)."""
         raise NotImplementedError
 
     def load_state(self, ckpt: dict, path) -> None:

@@ -5,6 +5,7 @@ Modules, each usable alone:
 
 - :mod:`.landmark_fit` — :func:`fit_landmarks`, the whole fit (one or many frames, shared or
   per-frame identity, affine or pinhole camera) returning a :class:`FitResult`, as named steps:
+
   - :mod:`.options` — its settings, validated (:class:`~.options.FitOptions`);
   - :mod:`.noise` — the noise and definition-error model, its defaults and the data weights;
   - :mod:`.problem` — a fit's fixed data and its state; :mod:`.rows` — the model rows of the
@@ -14,6 +15,7 @@ Modules, each usable alone:
     Levenberg-Marquardt; :mod:`.offsets` — the landmark offsets of a shared fit, solved by
     their block-diagonal structure; :mod:`.noise_estimation` — ``landmark_std_px="auto"``;
   - :mod:`.result` — :class:`FitResult` and its assembly;
+
 - :mod:`.pose` — the linear affine pose and the projection with its Jacobian;
 - :mod:`.linear` — closed-form identity and expression solves under the Gaussian prior;
 - :mod:`.schemes` — landmark schemes: L points on a model's surface, the outline ones sliding;

@@ -324,6 +324,7 @@ class Correspondences:
 
     @classmethod
     def fixed(cls, bank: LandmarkBank, n_frames: int) -> "Correspondences":
+        """Each landmark at its fixed point (``bank.fixed_row``) in each of ``n_frames`` frames."""
         a = np.broadcast_to(bank.fixed_row, (n_frames, len(bank.fixed_row))).copy()
         return cls(a, a.copy(), np.zeros(a.shape))
 

@@ -40,7 +40,7 @@ partial-landmark benchmark: same 3D error, fewer iterations)."""
 
 ESTIMATE_BELOW_GAIN = 2.0
 """After a step that gained less than this (chi-square units), the next convergence test is
-first estimated from the step's own Jacobian (:func:`_predicted_decrease`), which costs about
+first estimated from the step's own Jacobian (``_predicted_decrease``), which costs about
 half of new normal equations; after larger steps (a fit's first: 8-260 on 40 benchmark faces)
 it passed in 2 of 40, so it is not tried."""
 

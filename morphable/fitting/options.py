@@ -231,11 +231,15 @@ def detection_settings(detections, n_landmarks: int, landmark_std_px=1.0) -> dic
     ``landmark_std_px``, each frame's σ where its detector gives one
     (:func:`morphable.detection.result.landmark_noise`).
 
+    Parameters
+    ----------
     detections : list of :class:`~morphable.detection.result.Detection`, or None for an
         annotated frame, one per frame
     n_landmarks : 478 or 68, the points per frame the fit is given
     landmark_std_px : float or "auto", px: the noise of frames without σ
 
+    Examples
+    --------
     >>> detection_settings([None], 68)["landmark_std_px"]
     1.0
     """

@@ -9,9 +9,9 @@ points lies on a model's surface. It is derived, not placed by hand:
    name: eye and mouth corners, nose tip, chin (the model's ``landmark_ids`` for iBUG 36, 39, 42,
    45, 30, 48, 54, 8, whichever exist) against the canonical vertices found for them by geometry
    (:func:`anchor_indices`);
-2. a non-rigid registration (Amberg et al.'s optimal-step ICP, :func:`trimesh.registration.
-   nricp_amberg`) bends the 468-vertex mesh onto the model's skin, the anchors held to their
-   landmarks; the irises follow the displacement of their eye's lid points;
+2. a non-rigid registration (Amberg et al.'s optimal-step ICP,
+   ``trimesh.registration.nricp_amberg``) bends the 468-vertex mesh onto the model's skin, the
+   anchors held to their landmarks; the irises follow the displacement of their eye's lid points;
 3. each of the 478 registered points is projected onto the model's surface (the skin; ICT's
    irises onto its eyeballs, SFM's, which has none, onto its eyelids) -> a triangle's vertex ids
    and barycentric weights.

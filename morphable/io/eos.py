@@ -225,7 +225,8 @@ def read_symmetry(path, n_vertices: int) -> np.ndarray:
 
 
 def load_eos(path, name: str | None = None):
-    """Assemble a :class:`MorphableModel` from an eos model ``.bin`` or ``share/``-style folder.
+    """Assemble a :class:`~morphable.model.MorphableModel` from an eos model ``.bin`` or
+    ``share/``-style folder.
 
     ``path`` is the model ``.bin`` or a folder holding exactly one; the folder's
     ``expression_blendshapes_*.bin``, ``ibug_to_*.txt``, ``*_model_contours.json`` and

@@ -22,6 +22,7 @@ __all__ = ["MODELS", "DEFAULT_MODEL", "search_path", "cache_dir", "find_model", 
            "download", "sha256"]
 
 DEFAULT_MODEL = "sfm"
+"""The model :func:`load_model` and the commands load when none is named."""
 
 _EOS_SHARE = "https://raw.githubusercontent.com/patrikhuber/eos/v1.5.0/share/"
 _ICT_ZIP = "https://github.com/ICT-VGL/ICT-FaceKit/archive/refs/heads/master.zip"

@@ -9,8 +9,9 @@ __all__ = ["fit_item"]
 
 
 def fit_item(item, folder, options: dict) -> dict:
-    """Fit one :class:`~morphable.batch.BatchItem` (all its images together, :func:`fit_images`)
-    and write ``fit.obj`` and ``fit.json`` into ``folder``.
+    """Fit one :class:`~morphable.batch.BatchItem` (all its images together,
+    :func:`~morphable.pipeline.fit.fit_images`) and write ``fit.obj`` and ``fit.json`` into
+    ``folder``.
 
     ``options``: ``model``, ``camera``, ``focal_px``, ``n_iterations``, ``robust``, ``independent``,
     ``landmark_detector``, ``face_detector``, ``landmark_std_px``, ``mesh_format`` (suffix,

@@ -121,7 +121,7 @@ def load_fit_frame(path, frame: int = 0, model=None):
 
     Reads ``model``, ``identity``, ``frames[i]`` (pose, translation, camera kind, scale or
     focal, image size, expression weights by name) and, when present, ``cameras[i]`` in
-    :meth:`Camera.to_dict` form.
+    :meth:`~morphable.camera.Camera.to_dict` form.
 
     Returns
     -------

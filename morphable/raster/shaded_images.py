@@ -19,6 +19,7 @@ from .visibility import cast, check_mesh, scene, visibility
 __all__ = ["render", "DEFAULT_LIGHT", "DEFAULT_AMBIENT"]
 
 DEFAULT_LIGHT = DirectionalLight(direction=(0.4, 0.5, 1.0), color=(0.75, 0.75, 0.75))
+"""The light of :func:`render` when none is given (camera frame, +z towards the viewer)."""
 DEFAULT_AMBIENT = 0.3
 _GREY = (0.75, 0.75, 0.75)
 

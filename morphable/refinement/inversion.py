@@ -1,7 +1,7 @@
 """Refining a landmark fit by inverting a renderer: :func:`refine` (one frame) and
 :func:`refine_frames` (each frame of a video), short orchestrators over the steps of
-:mod:`.problem` and :mod:`.loss`, the optimisation (:func:`optimise`) and the mapping back
-into the fit (:func:`map_back`)."""
+:mod:`~morphable.refinement.problem` and :mod:`.loss`, the optimisation (:func:`optimise`) and
+the mapping back into the fit (:func:`map_back`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -58,15 +58,16 @@ def refine(image, fit, renderer="classical", *, steps: int = 100, frame: int = 0
     renderer_options : keyword options of ``get_renderer``
     seed : of the renderer's random start (gar: the prior part of V's latent)
     return_state : also return a :class:`~morphable.refinement.Refinement`
-    trace_every : when > 0, the report's ``trace`` lists ``{"step", "seconds", "alpha",
-        "beta"}`` every ``trace_every`` steps and at the end (error against run time)
+    trace_every : when > 0, the report's ``trace`` lists
+        ``{"step", "seconds", "alpha", "beta"}`` every ``trace_every`` steps and at the end
+        (error against run time)
 
     Returns
     -------
-    (FitResult, report) or (FitResult, report, Refinement). The report holds
-    ``photometric_loss`` and ``loss`` per step, ``runtime_s``, the landmark RMSE (px)
-    before/after, the feature network and how the renderer chose its starting appearance
-    (``latent_init``; None for renderers that do not say).
+    (FitResult, report) or (FitResult, report, Refinement)
+        The report holds ``photometric_loss`` and ``loss`` per step, ``runtime_s``, the
+        landmark RMSE (px) before/after, the feature network and how the renderer chose its
+        starting appearance (``latent_init``; None for renderers that do not say).
     """
     t0 = time.perf_counter()
     renderer, name = _renderer(renderer, renderer_options)

@@ -35,6 +35,7 @@ __all__ = ["AFLW21_ROWS", "FRL_ROWS", "FRL_OUTLINE", "FRL_CHIN", "SETS", "row_sc
            "london_items", "w300_items", "aflw2000_items", "set_items", "read_template", "to_crop"]
 
 SETS = ("aflw", "london", "300w", "aflw2000")
+"""The annotated photo sets by name (:func:`set_items`)."""
 
 
 def _ib(i: int) -> int:
@@ -96,17 +97,18 @@ def row_scheme(model, rows, name: str, outline=((), ()), chin_row: int = -1):
     model : MorphableModel
     rows : (L,) int, rows of the 546 points (fixed surface points of the model)
     name : the scheme's name
-    outline : (image-left side (J1,), image-right side (J2,)) of landmark indices *into the
-        scheme* (``L + k`` for the k-th outline point), each from the top down to the chin;
-        they get no fixed model point and slide along the outline (as iBUG-68's jaw)
+    outline : (image-left side (J1,), image-right side (J2,)) of landmark indices
+        *into the scheme* (``L + k`` for the k-th outline point), each from the top down to
+        the chin; they get no fixed model point and slide along the outline (as iBUG-68's jaw)
     chin_row : index into ``rows`` of the chin, the fixed point that ends both outline sides
         (-1: none)
 
     Returns
     -------
-    LandmarkScheme with ``L + len(outline points)`` landmarks; ``mirror`` maps a point to
-    its mirror where the mirror is in the scheme (else to itself); ``ibug68`` names the
-    scheme points that are iBUG rows.
+    LandmarkScheme
+        With ``L + len(outline points)`` landmarks; ``mirror`` maps a point to its mirror where
+        the mirror is in the scheme (else to itself); ``ibug68`` names the scheme points that
+        are iBUG rows.
     """
     from morphable.fitting.noise import DEFINITION_STD_MM
     from morphable.fitting.schemes import LandmarkScheme

@@ -40,6 +40,7 @@ __all__ = ["build", "profiled_faces", "pose_targets", "PITCH_RANGE_DEG", "main"]
 log = logging.getLogger("neural.faces.build_profiled")
 
 PITCH_RANGE_DEG = 25.0
+"""The largest target pitch, degrees, either way (:func:`pose_targets`)."""
 SOURCE_NAMES = ("london", "aflw")
 
 _STATE: dict = {}

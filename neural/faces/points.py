@@ -31,8 +31,10 @@ N_FACEMESH = 478
 N_IBUG = 68
 IBUG_START = N_FACEMESH
 N_POINTS = N_FACEMESH + N_IBUG
+"""The network's points: the 478 face-mesh rows, then the 68 iBUG rows."""
 FACEMESH_ROWS = np.arange(N_FACEMESH)
 IBUG_ROWS = np.arange(IBUG_START, N_POINTS)
+"""(68,) int: the rows of the 68 iBUG points."""
 
 BOX_SCALE = 1.4
 """Side of the face box over the larger side of the 68 points' bounding box."""

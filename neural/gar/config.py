@@ -24,23 +24,27 @@ __all__ = ["GARConfig", "CONFIGS", "get_config"]
 class GARConfig:
     """Every hyper-parameter of one GAR setup (sizes in pixels, angles in degrees).
 
-    Network
-    -------
+    .. rubric:: Network
+
     resolution : output image side (power of two, >= 8); blocks run 4, 8, ..., resolution.
     z_dim, w_dim : latent sizes; mapping_layers : depth of the mapping MLP (paper: 8).
+
     channel_base, channel_max : feature channels at resolution r are
         ``min(channel_max, channel_base // r)`` (StyleGAN2's rule), for G and D alike.
+
     aux_width : base width of the auxiliary networks N, P, L, R.
+
     aux_resolution : side (px) of the images the auxiliary networks take; G's renders and
         the normal maps are area-downsampled to it for L_n, L_ldmk and L_id (a 128-px G
         trained with the 64-px aux networks). None (default): ``resolution``.
+
     nim_background : the Normal Injection Module's background gain
         (:class:`neural.gar.networks.NormalInjection`): True lets features pass where the normal map
         is empty (hair, neck, scene); False zeroes them there, as the generators trained
         before the option did (their saved configs load as False).
 
-    Losses (paper defaults)
-    -----------------------
+    .. rubric:: Losses (paper defaults)
+
     lambda_n = 2, lambda_ldmk = 2, lambda_id = 1, lambda_adv = 1; ``r1_gamma`` weights the R1
     penalty, applied every ``r1_every`` discriminator steps (lazy regularisation).
     contrastive_every : the landmark and identity contrastive terms in every k-th generator
@@ -53,14 +57,14 @@ class GARConfig:
     for an L trained on synthetic renders (``meta["training_data"]`` ``SyntheticFaces...``,
     which has not learnt the other points), else all 68.
 
-    Discriminator augmentation
-    --------------------------
+    .. rubric:: Discriminator augmentation
+
     augment : DiffAugment policy (:mod:`neural.augment`), e.g. ``"color,translation,cutout"``;
     ``""`` off; ``None`` (default): on with all three for real photos (``--data``), off on
     synthetic renders.
 
-    Data
-    ----
+    .. rubric:: Data
+
     model : 3DMM of the synthetic faces; yaw_max, pitch_max, roll_max : uniform pose ranges;
     identity_std : spread of identity coefficients; expression_max : upper bound of
     blendshape weights (or PCA std) of random expressions.

@@ -36,6 +36,7 @@ __all__ = ["DEFAULT_LAMBDAS", "normal_loss", "landmark_loss", "identity_loss",
            "generator_losses", "area_downsample"]
 
 DEFAULT_LAMBDAS = {"n": 2.0, "ldmk": 2.0, "id": 1.0, "adv": 1.0}
+"""The terms' weights, the paper's: lambda_n = 2, lambda_ldmk = 2, lambda_id = 1, lambda_adv = 1."""
 
 
 def normal_loss(normals: torch.Tensor, predicted: torch.Tensor, mask: torch.Tensor,

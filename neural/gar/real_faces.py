@@ -15,12 +15,12 @@ key            shape, dtype           meaning
 =============  ====================  ====================================================
 ``image``      (N, R, R, 3) uint8     aligned photo (FFHQ framing, :mod:`neural.gar.data`)
 ``normals``    (N, R, R, 3) float32   unit normals of the fit, camera frame (x right, y
-                                     up, z towards the viewer), zero outside the face
+                                      up, z towards the viewer), zero outside the face
 ``mask``       (N, R, R) float32      face coverage of the fit in [0, 1]
 ``landmarks``  (N, 68, 2) float32     iBUG-68 px in the crop (x right, y down, 0-based
-                                     pixel centres), NaN where unknown
+                                      pixel centres), NaN where unknown
 ``person``     (N,) int64             person id (same id = same person), unique per
-                                     photo where the source does not say
+                                      photo where the source does not say
 ``held_out``   (N,) bool              the fixed held-out split (about 5 %, by person)
 ``source``     (N,) str               data set of the photo (e.g. ``"aflw"``, ``"london"``)
 ``name``       (N,) str               the photo's file, relative to the data folder

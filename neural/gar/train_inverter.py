@@ -11,7 +11,7 @@ Outputs in ``--out``: ``inverter.pt`` (:func:`neural.gar.inverter.save_inverter`
 metrics and the generator path in its meta) and ``metrics.json``:
 ``z_mse`` = mean squared error of the pixel-normalised latents (what G sees; 0 is exact, a
 latent unrelated to z gives 2), ``z_cosine`` (mean cosine of z_hat and z), ``image_l1`` =
-mean |G(n, V.latent(I)) - G(n, z)| in [0, 1] units, ``image_l1_direction`` the same with
+mean ``|G(n, V.latent(I)) - G(n, z)|`` in [0, 1] units, ``image_l1_direction`` the same with
 ``PN(z_hat)`` alone, next to ``image_l1_random_z`` (a random latent), all on held-out
 renders; and ``direction_cosine``, the calibration of :meth:`neural.gar.inverter.Inverter.latent`,
 measured on renders of training normal maps after training (:func:`calibrate`).
@@ -66,7 +66,7 @@ def pack_pool(faces, held_out: bool, n: int, seed: int) -> dict:
 
 def evaluate_real(V, G, normals, images, steps: int = 100, lr: float = 0.05, seed: int = 1) -> dict:
     """Reconstruction of real photos ``images`` (B, 3, R, R) in [-1, 1] from their fits'
-    ``normals`` (B, 3, R, R): mean |G(n, z) - I| in [0, 1] units over the crop (G renders
+    ``normals`` (B, 3, R, R): mean ``|G(n, z) - I|`` in [0, 1] units over the crop (G renders
     the background too), noise zero, for z = V's calibrated latent (``image_l1_v``), the
     mean latent w = w_avg (``image_l1_mean``) and a latent optimised per photo by Adam from
     V's (``steps``, ``lr``; ``image_l1_optimised``), and V's error relative to the other two

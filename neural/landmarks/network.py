@@ -41,23 +41,29 @@ __all__ = ["LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_theta", "crop_
 class LandmarkConfig:
     """The landmark network and its training (sizes px, angles degrees).
 
-    Network
-    -------
+    .. rubric:: Network
+
     resolution : crop side (px); a multiple of 2 ** len(widths).
+
     widths : channels of the stride-2 stages (the first is the stem); the last feature map
         is ``resolution / 2 ** len(widths)`` on a side, flattened into the head.
+
     blocks : residual blocks after each stage's down-sampling convolution (one per stage).
     hidden : width of the head's hidden layer.
     sigma_min_px, sigma_max_px : the range σ is clamped to (crop px).
 
-    Training
-    --------
+    .. rubric:: Training
+
     steps, batch_size, lr (AdamW, one-cycle cosine after ``warmup`` steps), weight_decay, seed.
+
     mix : fraction of each batch from each pack kind (``synthetic``, ``annotated``,
         ``profiled``; kinds without a pack are dropped and the rest renormalised).
+
     negatives : fraction of each batch that is a crop away from the face (score target 0).
+
     scale_jitter, shift_jitter : the crop box's log-scale and centre (× side) jitter, standing
         in for face detectors' boxes; rotate_deg : in-plane rotation range; flip : mirror half.
+
     print_every, sample_every, checkpoint_every : in steps.
     """
     resolution: int = 128

@@ -1,16 +1,16 @@
 """The landmark network's face score fitted again with harder negatives.
 
-The training run's only negatives are crops away from the face (:func:`neural.landmarks.data.
-draw_batch`); the score it learned calls uniform noise a face (0.67-0.84 on noise photos) and
-was never shown a crop inside a face. Here the score's row of the last layer (the face logit:
-a linear function of the head's hidden layer) is fitted again by L2-regularised logistic
-regression on the frozen network's hidden features of training crops: faces as the trainer
-crops them, and as many negatives of each kind of :data:`neural.landmarks.data.NEGATIVE_KINDS`
-(away from the face, part of a face, textures without a photo), then again with the best
-windows of the network's window search on noise photos added (hard negatives: the search
-takes the best of hundreds of windows, so its false faces are the far tail of the
-negatives). Points and σ are untouched:
-the other rows and every other layer keep their weights bit for bit.
+The training run's only negatives are crops away from the face
+(:func:`neural.landmarks.data.draw_batch`); the score it learned calls uniform noise a face
+(0.67-0.84 on noise photos) and was never shown a crop inside a face. Here the score's row of
+the last layer (the face logit: a linear function of the head's hidden layer) is fitted again by
+L2-regularised logistic regression on the frozen network's hidden features of training crops:
+faces as the trainer crops them, and as many negatives of each kind of
+:data:`neural.landmarks.data.NEGATIVE_KINDS` (away from the face, part of a face, textures
+without a photo), then again with the best windows of the network's window search on noise
+photos added (hard negatives: the search takes the best of hundreds of windows, so its false
+faces are the far tail of the negatives). Points and σ are untouched: the other rows and every
+other layer keep their weights bit for bit.
 
 Recall and false-positive rates at :data:`neural.landmarks.detector.FACE_THRESHOLD`, before and
 after, on the held-out faces (the synthetic pack's last 256, the annotated and profiled packs'
@@ -51,7 +51,7 @@ def hidden_features(net, x: torch.Tensor, batch: int = 256) -> torch.Tensor:
 def fit_logistic(h: torch.Tensor, y: torch.Tensor, w0: torch.Tensor, b0: float,
                  l2: float = 1e-3, iterations: int = 200) -> tuple:
     """Class-balanced logistic regression of labels y (N,) in {0, 1} on features h (N, D),
-    from the row (w0 (D,), b0), with ``l2`` × |w|² added -> (w (D,), b) float64."""
+    from the row (w0 (D,), b0), with ``l2`` × ``|w|²`` added -> (w (D,), b) float64."""
     w = w0.double().clone().requires_grad_(True)
     b = torch.tensor(float(b0), dtype=torch.float64, requires_grad=True)
     y = y.double()
@@ -150,8 +150,10 @@ def _photo_rate(features: list, row) -> float:
 def refit_score(net, sources: dict, validation: dict, n: int = 4096, l2: float = 1e-3,
                 seed: int = 0, mining_photos: int = 64, mining_rounds: int = 2) -> dict:
     """Fit ``net``'s face-score row again (in place) -> a report: the rates before and after
-    (:func:`_rates`), crops used, seconds.
+    (``_rates``), crops used, seconds.
 
+    Parameters
+    ----------
     sources : kind -> training LandmarkSource (:func:`neural.landmarks.train.load_sources`)
     validation : name -> held-out LandmarkSource (faces only: negatives are drawn from them)
     n : training faces; as many negatives of each kind

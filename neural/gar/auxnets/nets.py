@@ -118,6 +118,7 @@ class LandmarkNet(nn.Module):
         return self.net(image)
 
     def landmarks(self, image):
+        """(B, 68, 2) pixel positions: the soft-argmax of each heatmap."""
         return soft_argmax(self(image))
 
 
