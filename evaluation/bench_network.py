@@ -16,10 +16,12 @@ NME as :mod:`evaluation.bench_alignment` (mean point distance / sqrt(w h) of the
 truth's box, per |yaw| bin and their mean); faces missed; and for the default options how
 much of the error is a bias all faces share (:func:`bias_table`).
 
-Median wall ms per face on one torch thread (the photo decoded first, not timed).
+Median wall ms per face on one thread (torch's or onnxruntime's: ``--backend``, default the
+detector's, :mod:`neural.landmarks.runtime`; the photo decoded first, not timed).
 
     python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_c/landmarks.pt
     python -m evaluation.bench_network --set aflw2000 --n 100
+    python -m evaluation.bench_network --set aflw2000 --n 200 --backend torch
 """
 from __future__ import annotations
 
@@ -82,7 +84,8 @@ def _validation(args) -> None:
     from neural.landmarks.detector import NetworkDetector, extent_box
     from neural.faces.points import BOX_SCALE, box_side
 
-    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1], backend=args.backend)
+                 for opt in OPTIONS}
     for name, d in held_out(Path(args.packs)).items():
         n = len(d["images"]) if args.n is None else min(args.n, len(d["images"]))
         extent = extent_box(d["boxes"][:n])
@@ -144,7 +147,8 @@ def _aflw2000(args) -> None:
     images = [read_image(path) for path in d["paths"]]
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
-    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1], backend=args.backend)
+                 for opt in OPTIONS}
     default = None
     for (passes, mirror), det in detectors.items():
         pred, ms = np.full(gt.shape, np.nan), []
@@ -178,7 +182,7 @@ def _aflw2000(args) -> None:
 
 @one_line_errors("python -m evaluation.bench_network")
 def main(argv=None) -> int:
-    import torch
+    import importlib.util
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--set", choices=("validation", "aflw2000"), default="validation")
@@ -187,8 +191,13 @@ def main(argv=None) -> int:
     p.add_argument("--packs", default=str(PACKS), help="the folder of the landmark packs "
                    "(validation; default landmark_data/)")
     p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
+    p.add_argument("--backend", choices=("auto", "onnxruntime", "torch"), default="auto",
+                   help="what runs the network (auto: onnxruntime where its graph is beside the weights)")
     args = p.parse_args(argv)
-    torch.set_num_threads(1)
+    if importlib.util.find_spec("torch") is not None:
+        import torch
+
+        torch.set_num_threads(1)
     if args.set == "validation":
         _validation(args)
     else:
