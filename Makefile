@@ -8,7 +8,7 @@ OUT := out
 DATA := ../shared/data
 
 .PHONY: install demo test docs bench clean system-deps gar-data gar-data-128 gar-gpu landmark-data \
-	landmark-annotated landmark-profiled landmark-synthetic landmark-train landmark-gpu
+	landmark-annotated landmark-profiled landmark-synthetic landmark-train landmark-gpu landmark-onnx
 
 install: $(STAMP)
 
@@ -72,6 +72,11 @@ LANDMARK_PACKS = --synthetic landmark_data/synthetic_sfm160 landmark_data/synthe
 # the CPU recipe (docs/landmark_net.md); rerun to resume from runs/landmarks/checkpoint.pt
 landmark-train: $(STAMP)
 	$(BIN)/python -m neural.landmarks.train --out runs/landmarks --recipe cpu $(LANDMARK_PACKS)
+
+# the committed weights exported to ONNX beside them (landmarks.onnx, what detection runs on
+# onnxruntime: docs/landmark_net.md, "Without torch"); rerun after changing landmarks.pt
+landmark-onnx: $(STAMP)
+	$(BIN)/python -m neural.landmarks.export --weights neural/landmarks/weights/landmarks.pt
 
 # the GPU recipe: one job, 8 minutes (issue "the landmark network at scale")
 landmark-gpu:

@@ -18,11 +18,13 @@ much of the error is a bias all faces share (:func:`bias_table`). With the datas
 row of the peer 3DDFA-V2 (its released MobileNet-0.5, :mod:`evaluation.peers_3ddfa`, files from
 ``--3ddfa-dir`` or ``$MORPHABLE_3DDFA_DIR``; one printed line says when it is skipped).
 
-Median wall ms per face on one torch thread (the photo decoded first, not timed; with the
+Median wall ms per face on one thread (torch's or onnxruntime's: ``--backend``, default the
+detector's, :mod:`neural.landmarks.runtime`; the photo decoded first, not timed; with the
 dataset's box each photo read by every option in turn).
 
     python -m evaluation.bench_network --set validation --weights runs/ldmk_cpu_c/landmarks.pt
     python -m evaluation.bench_network --set aflw2000 --n 100
+    python -m evaluation.bench_network --set aflw2000 --n 200 --backend torch
 """
 from __future__ import annotations
 
@@ -87,7 +89,8 @@ def _validation(args) -> None:
     from neural.landmarks.detector import NetworkDetector, extent_box
     from neural.faces.points import BOX_SCALE, box_side
 
-    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1], backend=args.backend)
+                 for opt in OPTIONS}
     for name, d in held_out(Path(args.packs)).items():
         n = len(d["images"]) if args.n is None else min(args.n, len(d["images"]))
         extent = extent_box(d["boxes"][:n])
@@ -153,7 +156,8 @@ def _aflw2000(args) -> None:
         print(f"3ddfa-v2: skipped, {why}")
     print("| box, options | 0-30° | 30-60° | 60-90° | mean | all | missed | median ms |\n"
           "|---|---|---|---|---|---|---|---|")
-    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1]) for opt in OPTIONS}
+    detectors = {opt: NetworkDetector(args.weights, passes=opt[0], mirror=opt[1],
+                                      backend=args.backend) for opt in OPTIONS}
     readers = {f"68 points' extent, {_option(*opt)}": (lambda img, box, det=det: det.detect(img, box=box).ibug68)
                for opt, det in detectors.items()}
     if not why:
@@ -193,7 +197,7 @@ def _aflw2000(args) -> None:
 
 @one_line_errors("python -m evaluation.bench_network")
 def main(argv=None) -> int:
-    import torch
+    import importlib.util
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--set", choices=("validation", "aflw2000"), default="validation")
@@ -203,8 +207,13 @@ def main(argv=None) -> int:
                    "(validation; default landmark_data/)")
     p.add_argument("--weights", help="landmarks.pt (default: $MORPHABLE_LANDMARK_WEIGHTS or the committed)")
     add_dir_argument(p)
+    p.add_argument("--backend", choices=("auto", "onnxruntime", "torch"), default="auto",
+                   help="what runs the network (auto: onnxruntime where its graph is beside the weights)")
     args = p.parse_args(argv)
-    torch.set_num_threads(1)
+    if importlib.util.find_spec("torch") is not None:
+        import torch
+
+        torch.set_num_threads(1)
     if args.set == "validation":
         _validation(args)
     else:

@@ -299,3 +299,28 @@ def test_atomic_outputs_get_the_usual_mode(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_obj_is_written_without_trimesh_as_trimesh_writes_it(tmp_path):
+    """An OBJ (with and without UVs, with a texture's material) holds the v, vt and f lines that
+    trimesh's export_obj writes for the same mesh, and reads back as the mesh written."""
+    import trimesh
+
+    from morphable.io.mesh import uv_unwelded
+
+    m = load_model("sfm")
+    v = m.mean.reshape(-1, 3)
+    seams = (np.vstack([m.uv, m.uv]), m.triangles + len(v) * (np.arange(len(m.triangles)) % 2)[:, None])
+    for uv, tuv in ((None, None), (m.uv, None), seams):
+        mine = write_mesh(tmp_path / "m.obj", v, m.triangles, uv, tuv).read_text()
+        vv, ff, uu = (v, m.triangles, uv) if tuv is None else uv_unwelded(v, m.triangles, uv, tuv)
+        ref = trimesh.Trimesh(vv, ff, process=False, visual=None if uu is None else trimesh.visual.TextureVisuals(uv=uu))
+        theirs = trimesh.exchange.obj.export_obj(ref, include_texture=True, include_normals=False)
+        assert mine.splitlines() == [ln for ln in theirs.splitlines()
+                                     if ln and not ln.startswith(("#", "mtllib", "usemtl"))]
+        back = read_mesh(tmp_path / "m.obj")
+        np.testing.assert_allclose(back.vertices, vv, atol=1e-8)
+        np.testing.assert_array_equal(back.faces, ff)
+    (tmp_path / "t.png").write_bytes(b"")
+    text = write_mesh(tmp_path / "t.obj", v, m.triangles, m.uv, m.triangle_uv, texture=tmp_path / "t.png").read_text()
+    assert text.startswith("mtllib t.mtl\nv ") and text.count("usemtl face\nf ") == 1

@@ -237,8 +237,9 @@ def test_network_not_installed_is_one_line(monkeypatch):
 def test_crops_put_each_photo_pixel_where_the_crop_geometry_says():
     """A bright blob at a known photo pixel lands at its crop coordinates (image_to_crop),
     for a box cut at full resolution and one reduced 4 times."""
+    from neural.landmarks.cropping import crop_theta, image_to_crop
     from neural.landmarks.detector import crops
-    from neural.landmarks.network import crop_theta, image_to_crop, points_in_crop_px
+    from neural.landmarks.network import points_in_crop_px
 
     H, W, R = 1200, 1600, 32
     yy, xx = np.mgrid[:H, :W]
@@ -246,12 +247,12 @@ def test_crops_put_each_photo_pixel_where_the_crop_geometry_says():
                               ((300.0, 200.0, 556.0, 456.0), (451.0, 322.0), 12.0)):
         img = np.exp(-((xx - blob[0]) ** 2 + (yy - blob[1]) ** 2) / (2 * radius ** 2))
         img = np.repeat((255 * img).round().astype(np.uint8)[..., None], 3, -1)
-        c = crops(img, np.array([box]), R)[0, 0].numpy() + 1
+        c = crops(img, np.array([box]), R)[0, 0] + 1
         m = np.mgrid[:R, :R]
         centroid = np.array([(c * m[1]).sum(), (c * m[0]).sum()]) / c.sum()
         theta = crop_theta(np.array([box]), (W, H))
-        q = image_to_crop(torch.tensor([[blob]], dtype=torch.float64), theta.double(), (W, H))
-        expect = points_in_crop_px(q[0, 0].numpy(), R)
+        q = image_to_crop(np.array([[blob]]), theta, (W, H))
+        expect = points_in_crop_px(q[0, 0], R)
         assert np.abs(centroid - expect).max() < 0.1, (box, centroid, expect)
 
 
@@ -299,20 +300,20 @@ def test_mirrored_reading_is_put_back_row_for_row_and_sigma_is_not_shrunk():
     from neural.landmarks.detector import merge_mirrored
     from neural.faces.points import mirror_index
 
-    m = torch.as_tensor(mirror_index())
-    q = torch.rand(3, 546, 2, dtype=torch.float64) * 2 - 1
-    flipped = (q * torch.tensor([-1.0, 1.0], dtype=torch.float64))[:, m]
-    ls = torch.full((3, 546), math.log(2.0), dtype=torch.float64)
-    out = merge_mirrored({"points": q, "log_sigma": ls, "score": torch.tensor([1.0, 2.0, 3.0])},
-                         {"points": flipped, "log_sigma": ls, "score": torch.tensor([3.0, 2.0, 1.0])})
-    torch.testing.assert_close(out["points"], q)
-    torch.testing.assert_close(out["log_sigma"].exp(), torch.full_like(ls, 2.0))
-    torch.testing.assert_close(out["score"], torch.full((3,), 2.0))
+    m = mirror_index()
+    q = np.random.default_rng(0).uniform(-1, 1, (3, 546, 2))
+    flipped = (q * [-1.0, 1.0])[:, m]
+    ls = np.full((3, 546), math.log(2.0))
+    out = merge_mirrored({"points": q, "log_sigma": ls, "score": np.array([1.0, 2.0, 3.0])},
+                         {"points": flipped, "log_sigma": ls, "score": np.array([3.0, 2.0, 1.0])})
+    np.testing.assert_allclose(out["points"], q, atol=1e-12)
+    np.testing.assert_allclose(np.exp(out["log_sigma"]), 2.0)
+    np.testing.assert_allclose(out["score"], 2.0)
     # a wrong row swap or sign would not come back: the mirror is not the identity
-    assert (flipped - q).abs().max() > 0.5
-    other = merge_mirrored({"points": q, "log_sigma": torch.full_like(ls, math.log(3.0)), "score": torch.zeros(3)},
-                           {"points": flipped, "log_sigma": torch.full_like(ls, math.log(4.0)), "score": torch.zeros(3)})
-    torch.testing.assert_close(other["log_sigma"].exp(), torch.full_like(ls, math.sqrt(12.5)))
+    assert np.abs(flipped - q).max() > 0.5
+    other = merge_mirrored({"points": q, "log_sigma": np.full_like(ls, math.log(3.0)), "score": np.zeros(3)},
+                           {"points": flipped, "log_sigma": np.full_like(ls, math.log(4.0)), "score": np.zeros(3)})
+    np.testing.assert_allclose(np.exp(other["log_sigma"]), math.sqrt(12.5))
 
 
 def test_mirror_option_agrees_with_one_reading_for_a_mirror_symmetric_answer(tmp_path):
@@ -510,7 +511,7 @@ def test_committed_weights_find_a_face_and_none_in_noise(data_dir):
     from neural.landmarks.detector import WEIGHTS_FILE, NetworkDetector
 
     det = NetworkDetector(WEIGHTS_FILE)
-    assert "score_refit" in det.net.meta
+    assert "score_refit" in det.network.meta
     found = det.detect(read_image(data_dir / "images" / "image_0010.png"), face_detector="windows")
     assert found.score > 0.9
     for seed in range(3):

@@ -1,4 +1,5 @@
-"""Mesh files through trimesh: export (OBJ with UVs, PLY, STL...) and reading of scans."""
+"""Mesh files: export (OBJ with UVs written here; PLY, STL... through trimesh) and reading of
+scans (trimesh)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,7 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["write_mesh", "read_mesh", "uv_unwelded", "mtl_texture_reference", "mesh_format",
+__all__ = ["write_mesh", "obj_text", "read_mesh", "uv_unwelded", "mtl_texture_reference", "mesh_format",
            "MESH_FORMATS"]
 
 MESH_FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf")
@@ -42,10 +43,10 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
         ``morphable render`` draw it
 
     The file is written atomically; with per-triangle UVs, vertices on UV seams are
-    duplicated (vertex order then differs from the model's).
+    duplicated (vertex order then differs from the model's). An OBJ without vertex colours is
+    written here (:func:`obj_text`, the lines trimesh writes), the rest through trimesh,
+    whose import (scipy's with it, about a second) a fit's OBJ does without.
     """
-    import trimesh
-
     path = Path(path)
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(triangles, dtype=np.int64)
@@ -53,32 +54,34 @@ def write_mesh(path, vertices, triangles, uv=None, triangle_uv=None, vertex_colo
         raise InputError(f"{path}: vertices must be a non-empty (V, 3) array")
     if not np.isfinite(v).all():
         raise InputError(f"{path}: vertices contain NaN or inf; nothing written")
-    visual = None
     if uv is not None:
         uv = np.asarray(uv, dtype=np.float64)
         if triangle_uv is not None:
             v, f, uv = uv_unwelded(v, f, uv, np.asarray(triangle_uv))
-        visual = trimesh.visual.TextureVisuals(uv=uv)
-    mesh = trimesh.Trimesh(v, f, visual=visual, process=False)
-    if vertex_colors is not None and visual is None:
-        mesh.visual.vertex_colors = vertex_colors
     suffix = mesh_format(path)
     if texture is not None and (suffix != "obj" or uv is None):
         raise InputError(f"{path}: a texture needs an .obj mesh with UV coordinates")
     with atomic_path(path) as tmp:
-        if suffix == "obj":
-            text = trimesh.exchange.obj.export_obj(mesh, include_texture=True, include_normals=False)
-            # trimesh's own material references name files it does not write here
-            lines = [ln for ln in text.splitlines(True) if not ln.startswith(("mtllib", "usemtl"))]
+        if suffix == "obj" and vertex_colors is None:
+            text = obj_text(v, f, uv)
             if texture is not None:
                 mtl = path.with_suffix(".mtl")
                 _write_mtl(mtl, texture)
-                first_face = next(i for i, ln in enumerate(lines) if ln.startswith("f "))
-                lines.insert(first_face, "usemtl face\n")
-                lines.insert(0, f"mtllib {mtl.name}\n")
-            tmp.write_text("".join(lines))
+                first_face = text.index("\nf ") + 1
+                text = f"mtllib {mtl.name}\n" + text[:first_face] + "usemtl face\n" + text[first_face:]
+            tmp.write_text(text)
         else:
-            mesh.export(tmp, file_type=suffix)
+            import trimesh
+
+            visual = None if uv is None else trimesh.visual.TextureVisuals(uv=uv)
+            mesh = trimesh.Trimesh(v, f, visual=visual, process=False)
+            if vertex_colors is not None and visual is None:
+                mesh.visual.vertex_colors = vertex_colors
+            if suffix == "obj":
+                tmp.write_text(trimesh.exchange.obj.export_obj(mesh, include_texture=True,
+                                                               include_normals=False))
+            else:
+                mesh.export(tmp, file_type=suffix)
     return path
 
 
@@ -90,6 +93,29 @@ def mesh_format(path) -> str:
     if suffix not in MESH_FORMATS:
         raise InputError(f"{path}: unknown mesh format {path.suffix!r} (.obj .ply .stl .off .glb)")
     return suffix
+
+
+def obj_text(vertices, triangles, uv=None) -> str:
+    """Wavefront OBJ text of a mesh: ``v`` lines (8 decimals), ``vt`` lines where ``uv`` (V, 2)
+    gives one per vertex, ``f`` lines (1-based, ``i/i`` with UVs) -- the lines of trimesh's
+    ``export_obj``, without its header and material lines.
+
+    >>> print(obj_text(np.eye(3), [[0, 1, 2]]), end="")
+    v 1.00000000 0.00000000 0.00000000
+    v 0.00000000 1.00000000 0.00000000
+    v 0.00000000 0.00000000 1.00000000
+    f 1 2 3
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(triangles, dtype=np.int64) + 1
+    parts = [("v %.8f %.8f %.8f\n" * len(v)) % tuple(v.ravel())]
+    if uv is not None:
+        uv = np.asarray(uv, dtype=np.float64)
+        parts.append(("vt %.8f %.8f\n" * len(uv)) % tuple(uv.ravel()))
+        parts.append(("f %d/%d %d/%d %d/%d\n" * len(f)) % tuple(np.repeat(f.ravel(), 2)))
+    else:
+        parts.append(("f %d %d %d\n" * len(f)) % tuple(f.ravel()))
+    return "".join(parts)
 
 
 def mtl_texture_reference(mesh_path, texture) -> str:

@@ -12,7 +12,6 @@ import io
 import os
 import shutil
 import tempfile
-import urllib.request
 import zipfile
 from pathlib import Path
 
@@ -158,6 +157,8 @@ def sha256(path) -> str:
 
 
 def _fetch(url: str) -> bytes:
+    import urllib.request          # http, email and ssl with it: only a download needs them
+
     try:
         with urllib.request.urlopen(url, timeout=60) as r:
             return r.read()

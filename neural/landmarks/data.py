@@ -23,7 +23,8 @@ import torch
 
 from morphable.errors import InputError
 
-from .network import crop_images, crop_theta, image_to_crop
+from .cropping import crop_theta, image_to_crop
+from .network import crop_images
 from ..faces.points import box_side, face_box, mirror_index
 
 __all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "negative_crops",
@@ -153,7 +154,8 @@ def _crops(source: LandmarkSource, index, config, gen, negative, jitter: bool):
     boxes = torch.cat([c - s[:, None] / 2, c + s[:, None] / 2], 1)
     theta = crop_theta(boxes, (W, H), angle, flip)
     x = crop_images(img, theta, R)
-    q = image_to_crop(torch.nan_to_num(source.points[index]), theta, (W, H))
+    q = torch.as_tensor(image_to_crop(np.nan_to_num(source.points[index].numpy()), theta, (W, H)),
+                        dtype=torch.float32)
     w = source.weight[index].clone()
     if flip is not None and bool(flip.any()):
         m = torch.as_tensor(mirror_index())

@@ -27,7 +27,11 @@ Crops are cut from the photo reduced by an integer factor (box averaging) so tha
 pixel covers at most two photo pixels: bilinear sampling alone would alias a large face.
 
 Weights: ``weights=``, else ``$MORPHABLE_LANDMARK_WEIGHTS``, else the committed
-``neural/landmarks/weights/landmarks.pt`` (:func:`weights_path`).
+``neural/landmarks/weights/landmarks.pt`` (:func:`weights_path`); the network runs as its
+exported ONNX graph on onnxruntime where both are here (the committed ``landmarks.onnx``),
+else on torch (``backend=``, :mod:`neural.landmarks.runtime`). Crops, mirroring and the way
+back to the photo are numpy (:mod:`neural.landmarks.cropping`) whichever runs it, so that a
+detection imports no torch where onnxruntime runs the network.
 """
 from __future__ import annotations
 
@@ -42,7 +46,9 @@ from morphable.detection import FACE_DETECTORS as ALL_FACE_DETECTORS
 from morphable.detection.result import FACE_PROBABILITY, Detection
 from morphable.errors import FitError, InputError
 
-from ..faces.points import IBUG_ROWS, N_FACEMESH, box_from_points, box_side, face_box
+from ..faces.points import IBUG_ROWS, N_FACEMESH, box_from_points, box_side, face_box, mirror_index
+from . import runtime
+from .cropping import crop_theta, crop_to_image, sample_crops
 
 __all__ = ["WEIGHTS_ENV", "WEIGHTS_FILE", "BOX_FRAMING", "MIN_BOX_PX", "FACE_THRESHOLD",
            "WINDOW_SIDES", "WINDOW_STEP", "MAX_CANDIDATES", "PASSES", "MIRROR", "weights_path", "framing_box", "extent_box",
@@ -52,9 +58,9 @@ WEIGHTS_ENV = "MORPHABLE_LANDMARK_WEIGHTS"
 # a plain path beside this module, found without importing torch: "auto" asks unavailable() on
 # every detection command
 WEIGHTS_FILE = Path(__file__).resolve().parent / "weights" / "landmarks.pt"
-GET_WEIGHTS = (f"the weights are committed as neural/landmarks/weights/{WEIGHTS_FILE.name} (see "
-               "neural/landmarks/weights/MODEL_CARD.md), or train them with python -m neural.landmarks.train "
-               f"--out DIR and set ${WEIGHTS_ENV}=DIR/landmarks.pt")
+GET_WEIGHTS = (f"the weights are committed as neural/landmarks/weights/{WEIGHTS_FILE.name} and its "
+               "export landmarks.onnx (see neural/landmarks/weights/MODEL_CARD.md), or train them with "
+               f"python -m neural.landmarks.train --out DIR and set ${WEIGHTS_ENV}=DIR/landmarks.pt")
 
 BOX_FRAMING = {
     "full-range": (1.264, -0.009, -0.008),   # found 183 of 200
@@ -149,22 +155,19 @@ def windows(width: int, height: int, sides=WINDOW_SIDES, step: float = WINDOW_ST
     return np.concatenate(out) if out else np.zeros((0, 4))
 
 
-def crops(image: np.ndarray, boxes, resolution: int):
-    """(B, 3, R, R) float tensor in [-1, 1] of the square ``boxes`` (B, 4) px of ``image``
+def crops(image: np.ndarray, boxes, resolution: int) -> np.ndarray:
+    """(B, 3, R, R) float32 crops in [-1, 1] of the square ``boxes`` (B, 4) px of ``image``
     (H, W, 3) uint8, zero outside the photo, as the trainer crops its packs
-    (:func:`neural.landmarks.network.crop_images`). Boxes are cut from the photo reduced by
-    ``k = side // (2 R)`` (box averaging), those of one ``k`` together from the part of the
-    photo they cover."""
-    import torch
+    (:func:`neural.landmarks.network.crop_images`; here :func:`neural.landmarks.cropping.sample_crops`).
+    Boxes are cut from the photo reduced by ``k = side // (2 R)`` (box averaging), those of one
+    ``k`` together from the part of the photo they cover."""
     from PIL import Image
-
-    from .network import crop_images, crop_theta
 
     H, W = image.shape[:2]
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     side = box_side(boxes)
     ks = np.maximum(1, side // (2 * resolution)).astype(int)
-    out = torch.zeros(len(boxes), 3, resolution, resolution)
+    out = np.zeros((len(boxes), 3, resolution, resolution), np.float32)
     for k in np.unique(ks):
         rows = np.flatnonzero(ks == k)
         b = boxes[rows]
@@ -177,31 +180,26 @@ def crops(image: np.ndarray, boxes, resolution: int):
             sub = np.asarray(Image.fromarray(np.ascontiguousarray(sub)).reduce(int(k)))
         # pixel centres: p -> (p + 0.5) / k - 0.5 in the reduced part
         local = (b - [x0, y0, x0, y0] + 0.5) / k - 0.5
-        t = torch.from_numpy(np.array(sub)).permute(2, 0, 1)[None].float() / 127.5 - 1
         theta = crop_theta(local, (sub.shape[1], sub.shape[0]))
-        out[torch.as_tensor(rows)] = crop_images(t.expand(len(rows), -1, -1, -1), theta, resolution)
+        out[rows] = sample_crops(np.asarray(sub, np.float32) / 127.5 - 1, theta, resolution)
     return out
 
 
 def merge_mirrored(out: dict, mirrored: dict) -> dict:
-    """The network's answers on crops and on the same crops mirrored (``torch.flip`` of the
-    last axis) -> one answer: the mirrored crop's points put back (x -> -x in crop-normalised
+    """The network's answers on crops and on the same crops mirrored (the last axis reversed)
+    -> one answer: the mirrored crop's points put back (x -> -x in crop-normalised
     coordinates, each row swapped with its mirror row, :func:`neural.faces.points.mirror_index`)
     and averaged with the plain ones; log σ the log of the root mean square of the two σ (the
     two readings of one crop are not independent: σ is not shrunk by √2); the face logits
     averaged.
 
     out, mirrored : dicts of ``points`` (B, P, 2) crop-normalised, ``log_sigma`` (B, P),
-    ``score`` (B,) tensors."""
-    import torch
-
-    from ..faces.points import mirror_index
-
-    m = torch.as_tensor(mirror_index())
-    back = mirrored["points"][:, m] * torch.tensor([-1.0, 1.0], dtype=out["points"].dtype)
-    ls = torch.stack([out["log_sigma"], mirrored["log_sigma"][:, m]])
+    ``score`` (B,) arrays."""
+    m = mirror_index()
+    back = mirrored["points"][:, m] * np.array([-1.0, 1.0], dtype=out["points"].dtype)
+    ls = mirrored["log_sigma"][:, m]
     return {"points": (out["points"] + back) / 2,
-            "log_sigma": 0.5 * (torch.logsumexp(2 * ls, 0) - math.log(2)),
+            "log_sigma": 0.5 * (np.logaddexp(2 * out["log_sigma"], 2 * ls) - math.log(2)),
             "score": (out["score"] + mirrored["score"]) / 2}
 
 
@@ -216,6 +214,9 @@ class NetworkDetector:
         (default :data:`PASSES`)
     mirror : read every crop also mirrored and average (:func:`merge_mirrored`; one batch of
         two crops: about 1.5 x the network's time on one thread; default :data:`MIRROR`)
+    backend : "auto", "onnxruntime" or "torch": what runs the network
+        (:func:`neural.landmarks.runtime.choose_backend`; "auto": onnxruntime where it is
+        installed and the weights' exported graph is beside them, else torch)
 
     InputError (one line naming the file and how to get the weights) when the file is missing
     or not landmark-network weights.
@@ -225,58 +226,50 @@ class NetworkDetector:
 
     @classmethod
     def unavailable(cls) -> str | None:
-        """Why the network cannot run here (torch missing, no weights file), or None; imports
-        nothing."""
-        if importlib.util.find_spec("torch") is None:
-            return "torch is not installed"
-        path = weights_path()
-        return None if path.is_file() else f"{path}: no landmark network weights"
+        """Why the network cannot run here (neither onnxruntime with the exported graph nor
+        torch with the weights), or None; imports nothing."""
+        try:
+            runtime.choose_backend(weights_path())
+        except InputError as e:
+            return str(e)
+        return None
 
-    def __init__(self, weights=None, passes: int = None, mirror: bool = None):
-        from .network import load_landmark_net
-
+    def __init__(self, weights=None, passes: int = None, mirror: bool = None, backend: str = "auto"):
         passes = PASSES if passes is None else passes
         self.mirror = MIRROR if mirror is None else bool(mirror)
         if passes not in (1, 2):
             raise InputError(f"passes: 1 or 2, got {passes}")
         path = weights_path(weights)
         try:
-            self.net = load_landmark_net(path)
+            self.network = runtime.load(path, backend)
         except InputError as e:
             raise InputError(f"{e}; {GET_WEIGHTS}") from None
         except Exception as e:       # whatever else an unpickler meets in a foreign file
             raise InputError(f"{path}: not a landmark network file ({type(e).__name__}); "
                              f"{GET_WEIGHTS}") from None
         self.path, self.passes = path, passes
-        self.resolution = self.net.config.resolution
+        self.resolution = self.network.resolution
 
     # --- the network on boxes -----------------------------------------------------------------
     def run(self, image: np.ndarray, boxes) -> dict:
         """The network on the framing ``boxes`` (B, 4) px of ``image`` (H, W, 3) uint8 ->
         ``points`` (B, 546, 2) px, ``sigma_px`` (B, 546) px, ``probability`` (B,) in [0, 1]."""
-        import torch
-
-        from .network import crop_theta, crop_to_image
-
         boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
         H, W = image.shape[:2]
         pts, sig, prob = [], [], []
-        with torch.inference_mode():
-            for i in range(0, len(boxes), BATCH):
-                b = boxes[i:i + BATCH]
-                x = crops(image, b, self.resolution)
-                if self.mirror:
-                    both = self.net(torch.cat([x, torch.flip(x, dims=[-1])]))
-                    out = merge_mirrored(*({k: v[j * len(b):(j + 1) * len(b)] for k, v in both.items()}
-                                           for j in (0, 1)))
-                else:
-                    out = self.net(x)
-                theta = crop_theta(b, (W, H))
-                pts.append(crop_to_image(out["points"].double(), theta.double(), (W, H)).numpy())
-                side = box_side(b)
-                sig.append(np.exp(out["log_sigma"].double().numpy()) * (side / self.resolution)[:, None])
-                prob.append(torch.sigmoid(out["score"].double()).numpy())
-        P = self.net.config.n_points
+        for i in range(0, len(boxes), BATCH):
+            b = boxes[i:i + BATCH]
+            x = crops(image, b, self.resolution)
+            if self.mirror:
+                both = self.network(np.concatenate([x, x[..., ::-1]]))
+                out = merge_mirrored(*({k: v[j * len(b):(j + 1) * len(b)] for k, v in both.items()}
+                                       for j in (0, 1)))
+            else:
+                out = self.network(x)
+            pts.append(crop_to_image(out["points"], crop_theta(b, (W, H)), (W, H)))
+            sig.append(np.exp(out["log_sigma"].astype(np.float64)) * (box_side(b) / self.resolution)[:, None])
+            prob.append(1 / (1 + np.exp(-out["score"].astype(np.float64))))
+        P = self.network.n_points
         return {"points": np.concatenate(pts) if pts else np.zeros((0, P, 2)),
                 "sigma_px": np.concatenate(sig) if sig else np.zeros((0, P)),
                 "probability": np.concatenate(prob) if prob else np.zeros(0)}

@@ -6,11 +6,10 @@ regression of every point's position with an isotropic Gaussian uncertainty, tra
 negative log-likelihood (:func:`gaussian_nll`); the backbone is a small residual CNN sized for
 one CPU thread (:class:`LandmarkConfig`).
 
-The crop (:func:`crop_theta`, :func:`crop_images`): a square face box (``(x0, y0, x1, y1)``
-px, :func:`neural.faces.points.face_box` framing), optionally rotated by ``angle`` (radians,
-the crop's x axis turned counter-clockwise in the image) and mirrored, resampled to R x R.
-Crop-normalised coordinates ``q`` in [-1, 1] (pixel centres at ``(2j + 1) / R - 1``) map to
-image pixels by ``p = c + s/2 · Rot(angle) · diag(±1, 1) · q`` (c: box centre, s: side).
+The crop: a square face box, optionally rotated and mirrored, resampled to R x R; its geometry
+(``theta``, crop-normalised coordinates ``q`` in [-1, 1] and back to pixels) is
+:mod:`neural.landmarks.cropping`'s, numpy, shared with the detector; :func:`crop_images` cuts
+the trainer's crops with torch's ``grid_sample``.
 
 Conventions: images (B, 3, R, R) float in [-1, 1]; pixels x right, y down, 0-based pixel
 centres; σ in pixels of the image the points are given in.
@@ -26,15 +25,14 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..faces.points import N_POINTS, box_side
+from ..faces.points import N_POINTS
 
-__all__ = ["LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_theta", "crop_images",
-           "crop_to_image", "image_to_crop", "points_in_crop_px", "save_landmark_net", "load_landmark_net"]
+__all__ = ["LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_images", "points_in_crop_px",
+           "save_landmark_net", "load_landmark_net"]
 
 
 @dataclass(frozen=True)
@@ -189,58 +187,12 @@ def gaussian_nll(pred: torch.Tensor, log_sigma: torch.Tensor, target: torch.Tens
     return (nll * weight).sum() / weight.sum().clamp_min(1.0)
 
 
-def crop_theta(boxes, image_sizes, angle=None, flip=None) -> torch.Tensor:
-    """(B, 2, 3) ``affine_grid`` matrices of crops (``align_corners=False``).
-
-    boxes (B, 4) px ``(x0, y0, x1, y1)`` (the side is the mean of width and height);
-    image_sizes (B, 2) ``(W, H)`` px; angle (B,) radians or None; flip (B,) bool or None."""
-    boxes = torch.as_tensor(boxes, dtype=torch.float32)
-    wh = torch.as_tensor(image_sizes, dtype=torch.float32).reshape(-1, 2).expand(len(boxes), 2)
-    c = (boxes[:, :2] + boxes[:, 2:]) / 2
-    s = box_side(boxes)
-    M = _rotation(angle, len(boxes)) * (s / 2)[:, None, None]
-    M = M * _flip_matrix(flip, len(boxes))      # diag(±1, 1) on the right
-    scale = (2 / wh)[:, :, None]
-    theta = torch.cat([M * scale, (scale[:, :, 0] * c + 1 / wh - 1)[:, :, None]], dim=2)
-    return theta
-
-
-def _rotation(angle, n) -> torch.Tensor:
-    if angle is None:
-        return torch.eye(2).expand(n, 2, 2).clone()
-    a = torch.as_tensor(angle, dtype=torch.float32)
-    cos, sin = torch.cos(a), torch.sin(a)
-    # y points down: a positive angle turns the crop's x axis towards -y (counter-clockwise)
-    return torch.stack([torch.stack([cos, sin], -1), torch.stack([-sin, cos], -1)], -2)
-
-
-def _flip_matrix(flip, n) -> torch.Tensor:
-    f = torch.ones(n, 1, 2)
-    if flip is not None:
-        f[:, 0, 0] = torch.where(torch.as_tensor(flip), -1.0, 1.0)
-    return f
-
-
-def crop_images(images: torch.Tensor, theta: torch.Tensor, resolution: int) -> torch.Tensor:
-    """images (B, 3, H, W) float -> (B, 3, R, R) crops (bilinear; zero outside the image)."""
-    grid = F.affine_grid(theta.to(images), (len(images), 3, resolution, resolution),
+def crop_images(images: torch.Tensor, theta, resolution: int) -> torch.Tensor:
+    """images (B, 3, H, W) float -> (B, 3, R, R) crops (bilinear; zero outside the image) at
+    ``theta`` (B, 2, 3) (:func:`neural.landmarks.cropping.crop_theta`, array or tensor)."""
+    grid = F.affine_grid(torch.as_tensor(theta).to(images), (len(images), 3, resolution, resolution),
                          align_corners=False)
     return F.grid_sample(images, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
-
-
-def crop_to_image(q: torch.Tensor, theta: torch.Tensor, image_sizes) -> torch.Tensor:
-    """Crop-normalised points q (B, P, 2) -> image px (B, P, 2) through the crops' ``theta``."""
-    wh = torch.as_tensor(image_sizes, dtype=q.dtype).reshape(-1, 1, 2)
-    u = q @ theta[:, :, :2].transpose(1, 2).to(q) + theta[:, None, :, 2].to(q)
-    return ((u + 1) * wh - 1) / 2
-
-
-def image_to_crop(p: torch.Tensor, theta: torch.Tensor, image_sizes) -> torch.Tensor:
-    """Image px (B, P, 2) -> crop-normalised (B, P, 2): the inverse of :func:`crop_to_image`."""
-    wh = torch.as_tensor(image_sizes, dtype=p.dtype).reshape(-1, 1, 2)
-    u = (2 * p + 1) / wh - 1
-    A = theta[:, :, :2].to(p)
-    return (u - theta[:, None, :, 2].to(p)) @ torch.linalg.inv(A).transpose(1, 2)
 
 
 def save_landmark_net(net: LandmarkNet, path) -> None:

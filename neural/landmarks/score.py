@@ -96,7 +96,7 @@ def _window_features(net, photos) -> list:
 
     out = []
     for img in photos:
-        x = crops(img, windows(img.shape[1], img.shape[0]), net.config.resolution)
+        x = torch.from_numpy(crops(img, windows(img.shape[1], img.shape[0]), net.config.resolution))
         h = hidden_features(net, torch.cat([x, torch.flip(x, dims=[-1])]))
         out.append((h[:len(x)], h[len(x):]))
     return out
