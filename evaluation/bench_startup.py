@@ -5,7 +5,7 @@ and ``morphable fit`` of one photo, side by side in one run.
   (``NetworkDetector(backend=...)``), median ms per face on one thread (the default options:
   one pass, crop also read mirrored; the framing of the dataset's 68-point box; the photo
   decoded first, not timed), the process's peak RSS; then how far onnxruntime's readings lie
-  from torch's on the same faces (largest |Δ| of the 546 points px, of σ relative, of the face
+  from torch's on the same faces (largest ``|Δ|`` of the 546 points px, of σ relative, of the face
   probability) and each one's NME (AFLW2000-3D, research use only: the first ``--n`` photos);
   ``--fp16`` adds the graph exported with float16 weights (needs torch's exporter);
 - ``fit``: ``python -m morphable.cli fit PHOTO --out-mesh X.obj`` wall seconds and peak RSS
