@@ -43,7 +43,9 @@ CONFIGS = (("local", 1), ("local", 2), ("dask", 1), ("dask", 2))
 
 def make_synthetic_items(folder, model, n: int, size=(320, 320), seed: int = 0,
                          noise_px: float = 0.5) -> Path:
-    """``n`` grey PNGs (hard links of one file) with the ``.pts`` of a random face each.
+    """``n`` grey PNGs (hard links of one file) with the ``.pts`` of a random face each, and
+    their truth in ``truth.json``: per item id, ``identity`` (K,) coefficients (std units) and
+    ``pose_deg`` [yaw, pitch, roll] degrees.
 
     Faces: identity ~ N(0, 1), yaw in [-40, 40], pitch in [-15, 15], roll in [-10, 10]
     degrees, Gaussian landmark noise ``noise_px``. Returns ``folder``.
@@ -59,17 +61,21 @@ def make_synthetic_items(folder, model, n: int, size=(320, 320), seed: int = 0,
     rng = np.random.default_rng(seed)
     blank = folder / ".blank.png"
     Image.new("L", size, 128).save(blank)
+    truth = {}
     for i in range(n):
-        cam = Camera.looking_at_face(image_size=size, yaw=rng.uniform(-40, 40),
-                                     pitch=rng.uniform(-15, 15), roll=rng.uniform(-10, 10))
-        lms = simulate_landmarks(model, cam, identity=rng.normal(size=model.n_identity))
+        pose = [rng.uniform(-40, 40), rng.uniform(-15, 15), rng.uniform(-10, 10)]
+        identity = rng.normal(size=model.n_identity)
+        cam = Camera.looking_at_face(image_size=size, yaw=pose[0], pitch=pose[1], roll=pose[2])
+        lms = simulate_landmarks(model, cam, identity=identity)
         lms += rng.normal(scale=noise_px, size=lms.shape)
         # .pts has no missing points: the rows a model does not define (SFM: inner mouth
         # corners) get a finite stand-in, which the fit ignores
         lms = np.where(np.isfinite(lms), lms, lms[48])
         os.link(blank, folder / f"face{i:03d}.png")
         write_pts(folder / f"face{i:03d}.pts", lms)
+        truth[f"face{i:03d}"] = {"identity": identity.tolist(), "pose_deg": pose}
     blank.unlink()
+    (folder / "truth.json").write_text(json.dumps(truth))
     return folder
 
 

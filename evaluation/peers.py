@@ -28,9 +28,14 @@ class EosFitter:
 
     Examples
     --------
-    >>> fitter = EosFitter()  # doctest: +SKIP
-    >>> fitter.fit(landmarks, (512, 512)).shape  # (N, 68, 2) px in -> (N, 3448, 3) mm  # doctest: +SKIP
-    (5, 3448, 3)
+    >>> from morphable import load_model
+    >>> from morphable.camera import Camera
+    >>> from morphable.fitting import simulate_landmarks
+    >>> sfm = load_model("sfm")
+    >>> landmarks = np.stack([simulate_landmarks(sfm, Camera.looking_at_face((512, 512), yaw=yaw))
+    ...                       for yaw in (-20, 0, 20)])
+    >>> EosFitter().fit(landmarks, (512, 512)).shape    # (N, 68, 2) px in -> (N, 3448, 3) mm
+    (3, 3448, 3)
     """
 
     def __init__(self, folder=None, num_iterations: int = 5, lambda_identity: float = 30.0):

@@ -255,10 +255,12 @@ def synthetic_video(scan, condition: str, reference_landmarks, n_frames: int = 3
 
     Examples
     --------
-    >>> from morphable import load_model  # doctest: +SKIP
-    >>> v = synthetic_video(scan, "indoor", load_model("sfm").landmark_positions())  # doctest: +SKIP
-    >>> v.sampled_landmarks().shape  # doctest: +SKIP
-    (5, 68, 2)
+    >>> from morphable import load_model
+    >>> from evaluation.scans import model_scan
+    >>> scan = model_scan(load_model("ict"), rng=0)
+    >>> v = synthetic_video(scan, "indoor", load_model("sfm").landmark_positions())
+    >>> v.sampled_landmarks().shape, v.poses_deg.shape
+    ((5, 68, 2), (30, 3))
     """
     if condition not in CONDITIONS:
         raise InputError(f"unknown condition {condition!r}; choose from {', '.join(CONDITIONS)}")

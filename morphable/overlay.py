@@ -7,13 +7,14 @@ the fitted model points as red discs (drawn last, so a red pixel marks a fitted 
 
 Examples
 --------
->>> import numpy as np
 >>> from morphable import load_model
 >>> from morphable.fitting import fit_landmarks
->>> model = load_model("sfm")                                    # doctest: +SKIP
->>> res = fit_landmarks(model, landmarks[None], [[1280, 1024]])  # doctest: +SKIP
->>> img = draw_overlay("image_0010.png", res, mesh="wireframe")  # doctest: +SKIP
->>> img.shape, img.dtype                                         # doctest: +SKIP
+>>> from morphable.io.landmark_files import read_pts
+>>> photo = "../shared/data/images/image_0010.png"
+>>> landmarks = read_pts(photo.replace(".png", ".pts"))
+>>> res = fit_landmarks(load_model("sfm"), landmarks[None], [[1280, 1024]])
+>>> img = draw_overlay(photo, res, mesh="wireframe")
+>>> img.shape, img.dtype
 ((1024, 1280, 3), dtype('uint8'))
 """
 from __future__ import annotations

@@ -24,11 +24,14 @@ points where they project), with visibility (:func:`morphable.labels.project_lab
 
 Examples
 --------
->>> from morphable import fit_images                                            # doctest: +SKIP
->>> fit = fit_images("face.png", "face.pts").fit                                # doctest: +SKIP
->>> out = profile_photo("face.png", fit, 45.0)                                  # doctest: +SKIP
->>> out["image"].shape, out["landmarks_px"]["68"].shape                         # doctest: +SKIP
-((512, 512, 3), (68, 2))
+>>> from morphable import fit_images
+>>> photo = "../shared/data/images/takeo.ppm"                              # 150 x 225 px
+>>> fit = fit_images(photo, photo.replace(".ppm", ".pts")).fit
+>>> out = profile_photo(photo, fit, 30.0, texture_size=128)                # turned by 30 degrees
+>>> out["image"].shape, out["landmarks_px"]["68"].shape
+((225, 150, 3), (68, 2))
+>>> round(float(fit.euler_deg[0, 0])), round(float(out["camera"].euler_deg[0]))  # yaw before, after
+(7, 37)
 """
 from __future__ import annotations
 

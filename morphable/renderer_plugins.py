@@ -103,9 +103,11 @@ def get_renderer(name: str, **options) -> Renderer:
 
     Examples
     --------
-    >>> "classical" in available_renderers()  # doctest: +SKIP
+    >>> "classical" in available_renderers()
     True
-    >>> r = get_renderer("classical")  # doctest: +SKIP
+    >>> r = get_renderer("classical")
+    >>> sorted(r.default_appearance(1))         # what its render() takes besides the normals
+    ['albedo', 'background', 'sh']
     """
     eps = _entry_points()
     if name not in eps:

@@ -18,8 +18,11 @@ more frames, indistinguishable from the end. docs/video.md says what it costs to
 Every problem with a file is an :class:`~morphable.errors.InputError` whose message starts
 with the file's path: not a video, cut off, no video stream, no frames.
 
->>> from morphable.video import sample_frames              # doctest: +SKIP
->>> [(f.index, round(f.time_s, 3)) for f in sample_frames("clip.mp4", 5)]   # doctest: +SKIP
+>>> import tempfile
+>>> from morphable.video import sample_frames, write_video
+>>> frames = [np.full((48, 64, 3), 8 * i, np.uint8) for i in range(30)]    # 1 s at 30 frames/s
+>>> clip = write_video(f"{tempfile.mkdtemp()}/clip.mp4", frames, fps=30)
+>>> [(f.index, round(f.time_s, 3)) for f in sample_frames(clip, 5)]
 [(0, 0.0), (7, 0.233), (14, 0.467), (22, 0.733), (29, 0.967)]
 """
 from __future__ import annotations

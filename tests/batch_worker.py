@@ -1,4 +1,5 @@
 """An importable work function for the batch-engine tests (process pools and Dask need one)."""
+import sys
 import time
 
 from morphable.errors import InputError
@@ -12,10 +13,13 @@ def work(item, folder, options):
     return {"n_images": len(item.images)}
 
 
-if __name__ == "__main__":
-    import sys
-
+def main(argv) -> int:
+    """``batch_worker FOLDER OUT``: :func:`work` over the images of FOLDER into OUT."""
     from morphable.batch import read_manifest, run_batch
 
-    run_batch(read_manifest(sys.argv[1]), sys.argv[2], work, {"sleep": float(sys.argv[3])},
-              progress=False)
+    run_batch(read_manifest(argv[0]), argv[1], work, progress=False)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

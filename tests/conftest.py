@@ -1,10 +1,21 @@
-"""Shared fixtures: the read-only data beside the repository (../shared/data)."""
+"""Shared fixtures: the read-only data beside the repository (../shared/data).
+
+The suite tests this checkout with ../shared beside it, whatever the caller's environment says:
+every ``MORPHABLE_*`` variable (``MORPHABLE_DATA``, ``MORPHABLE_LANDMARK_WEIGHTS``,
+``MORPHABLE_GAR_WEIGHTS``, the notebooks' ``MORPHABLE_SHARED_DATA`` and
+``MORPHABLE_NOTEBOOK_OUT``) is removed before any test runs, for the tests and the commands they
+start. Models are then found in ../shared/data/models (:mod:`morphable.io.registry`), the
+weights are the committed ones; a test that wants a variable sets it with monkeypatch."""
+import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
+
+for _name in [k for k in os.environ if k.startswith("MORPHABLE_")]:
+    del os.environ[_name]
 
 
 @pytest.fixture(scope="session")

@@ -759,7 +759,7 @@ def test_bad_arguments_raise_input_error(sfm, kwargs, landmarks):
 
 
 # --- command line --------------------------------------------------------------------------
-def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir):
+def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir, sfm):
     from morphable.cli import main
 
     img = data_dir / "images" / "image_0010.png"
@@ -773,8 +773,11 @@ def test_cli_fit_writes_mesh_and_report(tmp_path, data_dir):
     assert -40 < frame["yaw_deg"] < -10 and "scale" in frame and len(rep["identity"]) == 63
     assert set(frame["expression"]) == {"anger", "disgust", "fear", "happiness", "sadness", "surprise"}
     assert frame["landmark_std_px"] == 1.0
-    text = mesh.read_text()
-    assert text.count("\nv ") >= 3448 and "\nvt " in text
+    # the mesh read back is the face of the report's identity and expression (with UVs)
+    from mesh_check import assert_mesh_holds, report_vertices
+
+    assert_mesh_holds(mesh, report_vertices(rep, sfm), sfm.triangles)
+    assert "\nvt " in mesh.read_text()
     # the landmark noise estimated from the fit, in the report
     assert main(["fit", str(img), "--landmarks", str(pts), "--report", str(report),
                  "--landmark-std", "auto"]) == 0

@@ -21,6 +21,18 @@ def by_path(photo, sfm):
     return morphable.fit_images(photo[0], photo[1], model=sfm)
 
 
+@pytest.fixture(scope="module")
+def two_frames(photo, sfm):
+    """One fit of image_0010 and its mirror image (the same points mirrored) as one person."""
+    from morphable.detection import read_image
+    from morphable.ibug68 import MIRROR
+    from morphable.io.landmark_files import read_pts
+
+    pixels, points = read_image(photo[0]), read_pts(photo[1])
+    mirrored = points[MIRROR] * [-1, 1] + [pixels.shape[1] - 1, 0]
+    return morphable.fit_images([pixels, pixels[:, ::-1]], [points, mirrored], model=sfm)
+
+
 def test_a_photo_and_its_points_are_fitted(by_path, photo):
     from morphable.io.landmark_files import read_pts
 
@@ -56,19 +68,33 @@ def test_arrays_give_the_fit_of_the_file(by_path, photo, sfm):
 
 
 def test_written_files_read_back(by_path, tmp_path):
-    from morphable.io import read_mesh
+    from mesh_check import assert_mesh_holds
 
     written = by_path.write(mesh=tmp_path / "fit.obj", report=tmp_path / "fit.json",
                             overlay=tmp_path / "overlay.png", texture=tmp_path / "face.png",
                             texture_size=64)
     assert sorted(p.name for p in written) == ["face.png", "fit.json", "fit.mtl", "fit.obj", "overlay.png"]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in written)
-    np.testing.assert_allclose(read_mesh(tmp_path / "fit.obj").vertices, by_path.vertices(0), atol=1e-4)
+    assert_mesh_holds(tmp_path / "fit.obj", by_path.vertices(0), by_path.fit.model.triangles)
     report = json.loads((tmp_path / "fit.json").read_text())
     assert report["frames"] == json.loads(json.dumps(by_path.report["frames"]))
     assert report["overlays"] == [str(tmp_path / "overlay.png")]
     assert report["texture"]["size"] == 64 and 0.3 < report["texture"]["observed"] <= 1
     assert "overlays" not in by_path.report          # the result's report stays the fit's
+
+
+@pytest.mark.parametrize("suffix", ["obj", "ply", "stl", "off", "glb"])
+def test_every_mesh_format_holds_the_fitted_face(by_path, two_frames, sfm, tmp_path, suffix):
+    # the fitted face, not the model's mean (which lies up to ~9 mm away), in every format;
+    # several frames: their identity without expression (the photo and its mirror image)
+    from mesh_check import assert_mesh_holds
+
+    by_path.write(mesh=tmp_path / f"one.{suffix}")
+    assert_mesh_holds(tmp_path / f"one.{suffix}", by_path.vertices(0), sfm.triangles)
+    assert np.abs(by_path.vertices(0) - sfm.mean.reshape(-1, 3)).max() > 3.0
+    two_frames.write(mesh=tmp_path / f"two.{suffix}")
+    assert_mesh_holds(tmp_path / f"two.{suffix}", two_frames.fit.neutral_vertices(), sfm.triangles)
+    assert np.abs(two_frames.fit.neutral_vertices() - two_frames.vertices(0)).max() > 0.1
 
 
 def test_write_is_all_or_nothing(by_path, tmp_path):

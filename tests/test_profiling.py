@@ -119,6 +119,16 @@ def test_cli_writes_picture_and_labels(small_photo, tmp_path):
     assert len(lab["points68"]) == 68 and len(lab["visible478"]) == 478
     assert sum(p is None for p in lab["points68"]) == 2      # SFM's inner mouth corners
     assert abs(lab["camera"]["pitch_deg"]) > 3 and 10 < sum(lab["visible68"]) < 68
+    # read back: the picture and the labels of the same turn of the same fit, made here
     from PIL import Image
 
-    assert Image.open(tmp_path / "p.png").size == (320, 256)
+    from morphable.profiling import profile_photo
+
+    _, fit = small_photo
+    here = profile_photo(d / "face.png", fit, -40.0, 10.0, texture_size=64)
+    written = np.asarray(Image.open(tmp_path / "p.png").convert("RGB"), dtype=float)
+    assert written.shape == here["image"].shape == (256, 320, 3)
+    assert np.abs(written - here["image"]).mean() < 0.5
+    got = np.array([p if p is not None else [np.nan, np.nan] for p in lab["points68"]])
+    np.testing.assert_allclose(got, here["landmarks_px"]["68"], atol=1e-6)
+    assert lab["visible478"] == here["visible"]["478"].tolist()

@@ -92,8 +92,22 @@ def test_render_textured_scan_and_model(tmp_path, data_dir):
     right = slice(cols[-1] - 7, cols[-1] + 1)
     # lit from the image's left
     assert img[:, left][fg[:, left]].mean() > img[:, right][fg[:, right]].mean() + 20
-    out = run("render", "ict", "--size", 32, "--sh", "1,0,0,0,0,0,0,0,0", "--out", tmp_path / "i.png")
-    assert out.returncode == 0, out.stderr
+    # --sh: the constant term alone lights every pixel of the face alike (the colour as it is,
+    # 0.75 -> 191); the x band lights the side facing +x (the image's right); 27 numbers are
+    # r, g, b per coefficient
+    for name, sh in (("uniform", "1" + ",0" * 8), ("x", "0.6,0,0,0.6" + ",0" * 5),
+                     ("red", "1" + ",0" * 26)):
+        out = run("render", "ict", "--size", 48, "--sh", sh, "--out", tmp_path / f"{name}.png")
+        assert out.returncode == 0, out.stderr
+    face = lambda name: np.asarray(Image.open(tmp_path / f"{name}.png")).astype(float)    # noqa: E731
+    uniform = face("uniform")
+    fg = ~(uniform == 255).all(-1)
+    assert fg.mean() > 0.25 and (uniform[fg] == 191).all()
+    assert (face("red")[fg] == [191, 0, 0]).all() and (face("red")[~fg] == 255).all()
+    x = face("x")[..., 0]
+    cols = np.flatnonzero(fg.any(0))
+    left, right = (x[:, c:c + 8][fg[:, c:c + 8]].mean() for c in (cols[0], cols[-1] - 7))
+    assert right > left + 80, (left, right)
 
 
 @pytest.mark.parametrize("args,message", [

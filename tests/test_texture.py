@@ -1,4 +1,5 @@
 """Texture extraction from photos (morphable.texture) and its command-line round trip."""
+import json
 import subprocess
 import sys
 
@@ -140,10 +141,18 @@ def test_fit_out_texture_round_trip(tmp_path, data_dir):
     flat = np.asarray(Image.open(tmp_path / "flat.png").convert("RGB"), dtype=float)
     face = flat[(flat < 250).any(-1)]
     assert len(face) > 2000 and face[:, 0].mean() > face[:, 2].mean() + 20   # skin, not grey
-    r = cli("texture", "fit.json", "--size", 64, "--out", "t64.png", "--confidence", "c64.png",
+    # `morphable texture` rebuilds the fit from the report alone: the same texture as the fit's
+    r = cli("texture", "fit.json", "--size", 128, "--out", "t128.png", "--confidence", "c128.png",
             cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert (tmp_path / "t64.png").is_file() and (tmp_path / "c64.png").is_file()
+    again = np.asarray(Image.open(tmp_path / "t128.png").convert("RGB"), dtype=float)
+    assert np.abs(again - np.asarray(Image.open(tmp_path / "face.png").convert("RGB"), dtype=float)).max() <= 1
+    seen = json.loads((tmp_path / "fit.json").read_text())["texture"]["observed"]
+    assert f"{100 * seen:.1f} % of the face seen" in r.stdout
+    # the confidence: a cosine per texel, zero where no view sees it (the far cheek, the texels
+    # off the face's layout)
+    conf = np.asarray(Image.open(tmp_path / "c128.png").convert("L"), dtype=float) / 255
+    assert 0.3 < (conf > 0).mean() < seen and conf.max() > 0.9
     r = cli("show", "fit.obj", "--screenshot", "shot.png", "--size", "128x128", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     shot = np.asarray(Image.open(tmp_path / "shot.png").convert("RGB"), dtype=float)

@@ -30,10 +30,12 @@ photos (grayscale, RGBA, 16-bit, EXIF-rotated -> upright RGB). Nothing here impo
 mediapipe, cv2, dlib, torch or a plugin until a detection runs (or ``"auto"`` asks a plugin
 whether it can run).
 
->>> from morphable.detection import detect_landmarks                  # doctest: +SKIP
->>> detect_landmarks("image_0010.png").shape                          # doctest: +SKIP
-(478, 2)
->>> detect_ibug68("image_0010.png", landmark_detector="dlib").shape   # doctest: +SKIP
+>>> from morphable.detection import detect, detect_ibug68
+>>> photo = "../shared/data/images/image_0010.png"
+>>> found = detect(photo)         # "auto": the network and the face mesh fused (all extras installed)
+>>> found.detector, found.points.shape, found.sigma_px.shape, found.ibug68.shape
+('network short-range + facemesh', (478, 2), (478,), (68, 2))
+>>> detect_ibug68(photo, landmark_detector="dlib").shape
 (68, 2)
 """
 from __future__ import annotations

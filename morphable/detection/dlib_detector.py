@@ -4,9 +4,11 @@ The models ship in the PyPI package ``face-recognition-models``; they are found 
 without importing that package (its ``__init__`` needs ``pkg_resources``). Use it through
 :func:`morphable.detection.detect_landmarks` (``landmark_detector="dlib"``).
 
->>> pts = detect_landmarks("../shared/data/images/image_0010.png")  # doctest: +SKIP
->>> pts.shape  # doctest: +SKIP
-(68, 2)
+>>> from morphable.io.landmark_files import read_pts
+>>> pts = detect_landmarks("../shared/data/images/image_0010.png")
+>>> truth = read_pts("../shared/data/images/image_0010.pts")      # px, a face ~400 px wide
+>>> pts.shape, bool(np.median(np.linalg.norm(pts - truth, axis=1)[17:]) < 10)
+((68, 2), True)
 """
 from __future__ import annotations
 

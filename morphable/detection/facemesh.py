@@ -19,9 +19,12 @@ full-range face detector searches the photo, then in overlapping tiles (so that 
 box. ``"short-range"`` / ``"full-range"`` always take that detector's largest box; a given
 ``box`` skips detection.
 
->>> pts = detect_landmarks("../shared/data/images/image_0010.png")  # doctest: +SKIP
->>> pts.shape  # doctest: +SKIP
-(478, 2)
+>>> from morphable.io.landmark_files import read_pts
+>>> pts = detect_landmarks("../shared/data/images/image_0010.png")
+>>> truth = read_pts("../shared/data/images/image_0010.pts")      # annotated, 68 points
+>>> error = np.linalg.norm(to_ibug68(pts) - truth, axis=1)         # px, on a face ~400 px wide
+>>> pts.shape, bool(np.median(error[17:]) < 10)                    # the inner points
+((478, 2), True)
 """
 from __future__ import annotations
 

@@ -27,7 +27,14 @@ Modules, each usable alone:
 
 Detection in photos is :mod:`morphable.detection`.
 
->>> from morphable.fitting import fit_landmarks, FitResult   # doctest: +SKIP
+>>> from morphable import load_model
+>>> from morphable.camera import Camera
+>>> from morphable.fitting import fit_landmarks, simulate_landmarks
+>>> sfm = load_model("sfm")
+>>> seen = simulate_landmarks(sfm, Camera.looking_at_face((512, 512), yaw=20))   # (68, 2) px
+>>> fit = fit_landmarks(sfm, seen, (512, 512))
+>>> round(float(fit.euler_deg[0, 0]), 1), bool(fit.landmark_rmse_px[0] < 0.1)      # yaw, degrees
+(20.0, True)
 
 numpy only, at import time and in the landmark fit; scipy and open3d load inside the scan fits.
 """

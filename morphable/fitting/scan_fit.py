@@ -9,9 +9,7 @@
 A scan is plain arrays: vertices (n, 3) mm, triangles (m, 3) int, landmarks (68, 3) mm in
 iBUG order (NaN rows where missing), all in the scan's own frame; any mesh loader gives them
 (:func:`evaluation.scans.load_scan` is one). scipy and open3d are imported inside the functions.
-
->>> from morphable.fitting import fit_surface   # doctest: +SKIP
->>> alpha, beta = fit_surface(load_model("sfm"), vertices, triangles, landmarks)  # doctest: +SKIP
+Each function's example fits a face of the model itself, given as such a scan.
 """
 from __future__ import annotations
 
@@ -105,9 +103,13 @@ def fit_surface(model, vertices, triangles, landmarks, *, n_iterations: int = 8,
 
     Examples
     --------
-    >>> sfm = load_model("sfm")  # doctest: +SKIP
-    >>> alpha, beta = fit_surface(sfm, scan.vertices, scan.triangles, scan.landmarks,
-    ...                           expression=True, pose="joint")  # doctest: +SKIP
+    >>> from morphable import load_model
+    >>> sfm = load_model("sfm")
+    >>> face = sfm.vertices(np.r_[1.5, -1.0, np.zeros(61)])     # the "scan": a face of the model
+    >>> landmarks = np.where(sfm.landmark_ids[:, None] >= 0, face[sfm.landmark_ids], np.nan)
+    >>> alpha, beta = fit_surface(sfm, face, sfm.triangles, landmarks, pose="joint")
+    >>> [round(float(a), 1) for a in alpha[:3]]
+    [1.4, -1.0, 0.0]
     """
     from scipy.optimize import lsq_linear
     from scipy.spatial import cKDTree
@@ -186,7 +188,13 @@ def fit_landmarks_3d(model, landmarks, *, n_iterations: int = 10, prior_weight: 
 
     Examples
     --------
-    >>> alpha, beta = fit_landmarks_3d(load_model("sfm"), scan.landmarks)  # doctest: +SKIP
+    >>> from morphable import load_model
+    >>> sfm = load_model("sfm")
+    >>> face = sfm.vertices(np.r_[1.5, -1.0, np.zeros(61)])
+    >>> landmarks = np.where(sfm.landmark_ids[:, None] >= 0, face[sfm.landmark_ids], np.nan)
+    >>> alpha, beta = fit_landmarks_3d(sfm, landmarks)
+    >>> [round(float(a), 1) for a in alpha[:3]]
+    [1.4, -0.8, 0.1]
     """
     from scipy.optimize import lsq_linear
 

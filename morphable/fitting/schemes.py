@@ -10,11 +10,12 @@ Two schemes exist for any model: ``"ibug68"`` (from the model's own ``landmark_i
 the two irises' 5 points each), read from a sidecar file: committed for SFM and ICT FaceKit in
 ``morphable/data/``, beside the model's file (or in the user cache) for any other model.
 
->>> from morphable import load_model                                  # doctest: +SKIP
->>> model = load_model("sfm")                                         # doctest: +SKIP
->>> scheme = ibug68_scheme(model)                                     # doctest: +SKIP
->>> scheme.points(model.mean).shape                                   # doctest: +SKIP
+>>> from morphable import load_model
+>>> model = load_model("sfm")
+>>> ibug68_scheme(model).points(model.mean).shape
 (68, 3)
+>>> fit_scheme(model, 478).points(model.mean).shape
+(478, 3)
 """
 from __future__ import annotations
 

@@ -22,8 +22,9 @@ def read_pts(path) -> np.ndarray:
 
     Examples
     --------
-    >>> read_pts("../shared/data/images/image_0010.pts").shape  # doctest: +SKIP
-    (68, 2)
+    >>> points = read_pts("../shared/data/images/image_0010.pts")   # its first row: 611.284152 272.773913
+    >>> points.shape, points[0].round(6).tolist()
+    ((68, 2), [610.284152, 271.773913])
     """
     path = Path(path)
     try:

@@ -37,10 +37,13 @@ def vertex_colors(vertices, triangles, camera, image, symmetry=None, min_facing:
 
     Examples
     --------
-    >>> res = fit_images("face.png", "face.pts", model=sfm).fit  # doctest: +SKIP
-    >>> colors, seen = vertex_colors(res.vertices(0), sfm.triangles, res.cameras[0],
-    ...                              "face.png", sfm.symmetry)  # doctest: +SKIP
-    >>> colors.shape, seen.mean() > 0.5  # doctest: +SKIP
+    >>> from morphable import fit_images, load_model
+    >>> sfm = load_model("sfm")
+    >>> photo = "../shared/data/images/image_0010.png"
+    >>> res = fit_images(photo, photo.replace(".png", ".pts"), model=sfm).fit
+    >>> colors, seen = vertex_colors(res.vertices(0), sfm.triangles, res.cameras[0], photo,
+    ...                              sfm.symmetry)
+    >>> colors.shape, bool(seen.mean() > 0.5)
     ((3448, 3), True)
     """
     from scipy.ndimage import map_coordinates

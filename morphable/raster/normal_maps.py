@@ -252,7 +252,7 @@ def layout_faces(model_or_mesh) -> np.ndarray:
     face's UV tile; else all of them.
 
     >>> import morphable
-    >>> int(layout_faces(morphable.load_model("sfm")).sum())  # doctest: +SKIP
+    >>> int(layout_faces(morphable.load_model("sfm")).sum())
     6736
     """
     from ..model import MorphableModel

@@ -77,9 +77,9 @@ class SyntheticFaces:
 
     Examples
     --------
-    >>> data = SyntheticFaces(resolution=32)  # doctest: +SKIP
-    >>> b = data.sample(2, rng=0, pair=True)  # doctest: +SKIP
-    >>> b["image"].shape, b["normals_b"].shape  # doctest: +SKIP
+    >>> data = SyntheticFaces(resolution=32)
+    >>> b = data.sample(2, rng=0, pair=True)
+    >>> b["image"].shape, b["normals_b"].shape
     (torch.Size([2, 3, 32, 32]), torch.Size([2, 3, 32, 32]))
     """
 

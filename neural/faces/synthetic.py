@@ -30,9 +30,9 @@ a fixed surface point near the jaw line, and ``defined68`` says which rows have 
 
 Examples
 --------
->>> eng = SyntheticEngine("sfm", resolution=32, degrade=False)          # doctest: +SKIP
->>> face = eng.sample(0)                                                 # doctest: +SKIP
->>> face["image"].shape, face["points478"].shape                         # doctest: +SKIP
+>>> eng = SyntheticEngine("sfm", resolution=32, degrade=False)
+>>> face = eng.sample(0)
+>>> face["image"].shape, face["points478"].shape
 ((32, 32, 3), (478, 2))
 """
 from __future__ import annotations
