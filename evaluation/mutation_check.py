@@ -78,9 +78,9 @@ FAULTS = (
           ("tests/test_renderer_plugins.py::test_committed_gar_follows_the_normals_it_is_given",),
           "the GAR plugin renders its normal map mirrored along the image's x axis"),
     Fault("landmarks-shifted-3-percent", "neural/landmarks/detector.py",
-          'pts.append(crop_to_image(out["points"].double(), theta.double(), (W, H)).numpy())',
-          'pts.append(crop_to_image(out["points"].double(), theta.double(), (W, H)).numpy()\n'
-          '                           + 0.03 / 1.4 * box_side(b)[:, None, None] * np.array([1.0, 0.0]))',
+          'pts.append(crop_to_image(out["points"], crop_theta(b, (W, H)), (W, H)))',
+          'pts.append(crop_to_image(out["points"], crop_theta(b, (W, H)), (W, H))\n'
+          '                       + 0.03 / 1.4 * box_side(b)[:, None, None] * np.array([1.0, 0.0]))',
           ("tests/test_landmark_detector.py::test_committed_weights_alone_against_annotated_photos",),
           "the landmark network's points moved right by 3 % of the face (its framing side / 1.4)"),
     # --- the weak spots mended with them -----------------------------------------------------
@@ -124,7 +124,10 @@ FAULTS = (
           "the suite takes $MORPHABLE_GAR_WEIGHTS (pointing at nothing here) from the caller"),
 )
 """The faults, one at a time: issue 57's four (each writer of the mesh separately) and the
-weak spots mended with them."""
+weak spots mended with them.
+
+:meta hide-value:
+"""
 
 POISON = ("MORPHABLE_DATA", "MORPHABLE_LANDMARK_WEIGHTS", "MORPHABLE_GAR_WEIGHTS")
 """Variables set to paths of nothing for every run: the suite must not read them."""
