@@ -68,7 +68,7 @@ FAULTS = (
           "write_mesh(mesh, result.mesh_vertices(),", "write_mesh(mesh, fit.model.mean.reshape(-1, 3),",
           ("tests/test_fit_batch.py::test_uninterrupted_run",),
           "the same, caught by fit-batch's items read back"),
-    Fault("tracked-identity-is-zero", "morphable/tracking.py",
+    Fault("tracked-identity-is-zero", "morphable/tracking/single.py",
           "    alpha = res.identity\n", "    alpha = np.zeros_like(res.identity)\n",
           ("tests/test_tracking.py",),
           "the tracked identity set to zeros (the mean face)"),

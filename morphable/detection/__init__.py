@@ -24,7 +24,9 @@
   window search).
 
 :func:`detect` gives a :class:`~.result.Detection` (points, σ per point where the detector
-predicts one, the 68 iBUG points, the convention, the face score and box);
+predicts one, the 68 iBUG points, the convention, the face score and box) of the largest face;
+:func:`detect_all` one for every face of a photo, left to right; :func:`detect_in_boxes` the
+faces in given boxes (a video's boxes carried from its previous frame);
 :func:`detect_landmarks` and :func:`detect_ibug68` its points alone. :mod:`.images` reads
 photos (grayscale, RGBA, 16-bit, EXIF-rotated -> upright RGB). Nothing here imports
 mediapipe, cv2, dlib, torch or a plugin until a detection runs (or ``"auto"`` asks a plugin
@@ -52,7 +54,7 @@ from .images import as_image, image_size, read_image
 from .result import FACE_PROBABILITY, Detection, landmark_noise
 
 __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
-           "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
+           "detect_ibug68", "detect_faces", "detect_all", "detect_in_boxes", "face_box", "SAME_FACE_IOU", "describe", "landmark_count", "Detection", "landmark_noise",
            "read_image", "image_size", "as_image"]
 
 LANDMARK_DETECTORS = ("auto", "fused", "facemesh", "dlib", "network")
@@ -65,6 +67,9 @@ FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("a
 network's, which finds the face). A plugin other than the network lists its own (its class's
 ``FACE_DETECTORS``)."""
 BUILTIN = ("facemesh", "dlib")
+SAME_FACE_IOU = 0.5
+"""Two detections whose :func:`face_box` overlap by this IoU or more are one face read twice
+(two face detectors' boxes, or two boxes of a video, on the same face)."""
 FUSED = "fused"
 
 
@@ -254,6 +259,89 @@ def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str =
         return boxes(image, face_detector=faces)
     network = "network" if landmarks == FUSED else landmarks
     return plugins.detector(network).detect_faces(as_image(image)[0], face_detector=faces)
+
+
+def face_box(detection: Detection) -> np.ndarray:
+    """A detection's face box -> (4,) float64 ``(left, top, right, bottom)`` px: the
+    detector's own (:attr:`Detection.box`, which :func:`detect`'s ``box=`` reads) where it
+    gives one, else the extent of its 68 iBUG points (what dlib's and the face mesh's ``box=``
+    read roughly)."""
+    if detection.box is not None:
+        return np.asarray(detection.box, dtype=np.float64)
+    return np.concatenate([detection.ibug68.min(0), detection.ibug68.max(0)])
+
+
+def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
+                    face_detector: str = "auto") -> list:
+    """The face in each of ``boxes``: :func:`detect` with ``box=`` for each.
+
+    Parameters
+    ----------
+    image : path or (H, W, 3) array (decoded once for all boxes)
+    boxes : (B, 4) px ``(left, top, right, bottom)``, e.g. :func:`face_box` of a video's
+        previous frame's detections
+    landmark_detector, face_detector : see :func:`detect`
+
+    Returns
+    -------
+    list of B :class:`~.result.Detection` or None: None where the box holds no face (the
+    detector finds none there, or scores its crop below
+    :data:`~.result.FACE_PROBABILITY`, or the box lies outside the image).
+    """
+    img, name = as_image(image)
+    out = []
+    for b in np.asarray(boxes, dtype=np.float64).reshape(-1, 4):
+        try:
+            found = detect(img, landmark_detector=landmark_detector, face_detector=face_detector,
+                           box=b)
+        except (FitError, InputError):
+            # a carried box that has left the picture or shrunk below what a detector reads
+            # holds no face to read, which is what the caller asks
+            found = None
+        if found is not None and found.score is not None and found.score < FACE_PROBABILITY:
+            found = None
+        out.append(found)
+    return out
+
+
+def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto") -> list:
+    """Every face of a photo, ordered left to right.
+
+    The face detector's boxes (:func:`detect_faces`), each read by the landmark detector
+    (:func:`detect_in_boxes`); a box without a face is dropped, and two readings of one face
+    (:data:`SAME_FACE_IOU`) kept once, the first (the larger box's).
+
+    Parameters
+    ----------
+    image : path or (H, W, 3) array
+    landmark_detector, face_detector : see :func:`detect`
+
+    Returns
+    -------
+    list of :class:`~.result.Detection`, by the centre of their :func:`face_box` from left to
+    right (an empty list: no face).
+
+    >>> faces = detect_all("../shared/data/images/breakingbad.jpg")
+    >>> len(faces), [round(float(face_box(f)[0])) for f in faces] == sorted(
+    ...     round(float(face_box(f)[0])) for f in faces)
+    (3, True)
+    """
+    from .boxes import iou
+
+    img, name = as_image(image)
+    boxes = detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector)
+    kept, kept_boxes = [], []
+    for found in detect_in_boxes(img, boxes, landmark_detector=landmark_detector,
+                                 face_detector=face_detector):
+        if found is None:
+            continue
+        b = face_box(found)
+        if kept_boxes and float(iou(np.array(kept_boxes), b).max()) >= SAME_FACE_IOU:
+            continue
+        kept.append(found)
+        kept_boxes.append(b)
+    order = np.argsort([(b[0] + b[2]) / 2 for b in kept_boxes], kind="stable")
+    return [kept[i] for i in order]
 
 
 def describe(landmark_detector: str = "auto", face_detector: str = "auto") -> str:
