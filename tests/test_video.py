@@ -275,7 +275,7 @@ def test_track_bad_inputs_write_nothing(face_clip):
     (face_clip / "file.txt").write_text("x")
     before = sorted(p.name for p in face_clip.iterdir())
     for args, message in [
-        (["track", "grey.mp4", "--out", "t"], "grey.mp4: no face found in any of the 6 sampled frames"),
+        (["track", "grey.mp4", "--out", "t"], "grey.mp4: no face found in any of its 6 frames"),
         (["track", "face.mp4", "--out", "file.txt"], "file.txt: exists and is not a folder"),
         (["track", "face.mp4", "--out", "nosuch/t"], "nosuch does not exist"),
         (["track", "face.mp4", "--out", "t", "--smoothing-hz", "-1"], "--smoothing-hz must be >= 0"),

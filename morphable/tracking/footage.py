@@ -3,9 +3,10 @@
 :func:`track_footage` runs these steps (frames streamed, never all held):
 
 1. the shots (:func:`morphable.shots.find_shots`: hard cuts and fades), one decoding pass;
-2. every frame, in a second pass: at a shot's start, and wherever a track has lost its face or
-   no face is tracked, or every :data:`REDETECT_S` seconds (a face entering the picture), the
-   face detector finds every face (:func:`morphable.detection.detect_all`); on the other
+2. every frame, in a second pass: at a shot's start and every :data:`REDETECT_S` seconds (a
+   face entering the picture) the face detector finds every face
+   (:func:`morphable.detection.detect_all`), and so does a quicker one
+   (:data:`QUICK_FACE_DETECTORS`) wherever a track has lost its face or no face is tracked; on the other
    frames each track's face is read by the landmark detector in the box its previous frame's
    points give (:func:`morphable.detection.detect_in_boxes`). The faces the face detector finds
    are associated with the shot's running tracks by box overlap of their points
@@ -38,11 +39,18 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
+           "QUICK_FACE_DETECTORS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
 REDETECT_S = 1.0
 """The face detector runs at least this often (seconds of video) while faces are tracked, so
 that a face entering the picture is found."""
+QUICK_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
+                        "dlib": "hog"}
+"""With ``face_detector="auto"``, the face detector of the searches between a shot's start and
+every :data:`REDETECT_S` (a lost face, no face tracked), per landmark detector: mediapipe's
+short-range detector (2 ms on a 640 x 480 frame without a face, where "auto" ends in the
+network's window search, about 1.2 s, and the full-range detector in its tiles, 70 ms)."""
 DESCRIPTOR_EVERY_S = 1.0
 """A track's face descriptor is computed on its first frame and then this often (seconds)."""
 MAX_DESCRIPTORS = 5
@@ -278,7 +286,7 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     """
     from ..descriptors import face_descriptors
     from ..descriptors import SAME_PERSON_DISTANCE
-    from ..detection import describe, detect_all, detect_in_boxes, face_box
+    from ..detection import describe, detect_all, detect_in_boxes, face_box, resolve_detectors
     from ..detection.boxes import iou
     from ..shots import find_shots
     from ..video import iter_frames, probe
@@ -300,16 +308,21 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     redetect, every = max(1, round(REDETECT_S * fps)), max(1, round(DESCRIPTOR_EVERY_S * fps))
     starts = {a: k for k, (a, _) in enumerate(shots)}
     detectors = {"landmark_detector": landmark_detector, "face_detector": face_detector}
+    quick = dict(detectors)
+    if face_detector == "auto":
+        quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
     running, ended, detected, times = [], [], [], []
     shot, last_detect, next_id = -1, -10 ** 9, 0
     frames = iter_frames(path)
     if progress:
         from tqdm import tqdm
 
-        frames = tqdm(frames, total=info.n_frames, unit="frame", desc=str(path), leave=False)
+        # disable=None: a bar on a terminal only, so that a failure stays one line in a log
+        frames = tqdm(frames, total=info.n_frames, unit="frame", desc=str(path), leave=False, disable=None)
     for frame in frames:
         i, image = frame.index, frame.image
-        if i in starts or shot < 0:
+        full = i in starts or shot < 0
+        if full:
             shot = starts.get(i, max(shot, 0))
             ended += running
             running = []
@@ -330,12 +343,13 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
                 ended.append(t)
             else:
                 running.append(t)
-        ran = lost or not running or i - last_detect >= redetect
+        full = full or i - last_detect >= redetect
+        ran = full or lost or not running
         detected.append(ran)
         times.append(frame.time_s)
         if ran:
-            last_detect = i
-            faces = detect_all(image, **detectors)
+            last_detect = i if full else last_detect
+            faces = detect_all(image, **(detectors if full else quick))
             boxes = [face_box(d) for d in faces]
             taken = {f for _, f in associate([t.box for t in running], boxes)}
             for k, det in enumerate(faces):
