@@ -33,6 +33,12 @@ def add_parser(sub):
                         "(default: detect, see --landmark-detector)")
     add_model_argument(p)
     add_fitting_arguments(p)
+    faces = p.add_mutually_exclusive_group()
+    faces.add_argument("--all-faces", action="store_true",
+                       help="fit every face of one photo, each on its own, numbered from 0 left to "
+                            "right: outputs NAME_K.* per face, one --overlay with every face and its number")
+    faces.add_argument("--face", type=int, metavar="K",
+                       help="fit face K of one photo (numbered from 0 left to right; default: the largest)")
     p.add_argument("--independent", action="store_true",
                    help="fit each image on its own; the mesh is the average identity")
     p.add_argument("--out-mesh", help="output mesh (.obj with UVs, .ply, .stl)")
@@ -90,17 +96,29 @@ def run(args):
     if args.refine:
         refine_options = {"steps": args.steps, "weights": weights,
                           "renderer_options": renderer_options(args.inverter)}
+    if args.face is not None and args.face < 0:
+        raise InputError(f"--face must be >= 0, got {args.face}")
+    if (args.all_faces or args.face is not None) and (len(args.images) != 1 or args.landmarks):
+        raise InputError(f"{'--all-faces' if args.all_faces else '--face'}: for one photo whose faces "
+                         "are detected (no --landmarks)")
     result = fit_images(args.images, args.landmarks, model=model, refine=args.refine,
                         refine_options=refine_options, camera=args.camera, focal_px=args.focal_px,
                         n_iterations=args.n_iterations, robust=args.robust,
                         shared_identity=not args.independent,
                         landmark_detector=args.landmark_detector, face_detector=args.face_detector,
-                        landmark_std_px=args.landmark_std, video_frames=args.frames)
+                        landmark_std_px=args.landmark_std, video_frames=args.frames,
+                        face=args.face, all_faces=args.all_faces)
+    if args.all_faces:
+        return _write_all_faces(args, result)
     result.write(mesh=args.out_mesh, report=args.report, texture=args.out_texture, overlay=args.overlay,
                  texture_size=args.texture_size,
                  overlay_style=None if args.overlay_style == "none" else args.overlay_style,
                  overlay_crop=args.overlay_crop, refine_render=args.refine_render)
     report, res = result.report, result.fit
+    if report.get("faces_seen", 1) > 1:
+        n = report["faces_seen"] - 1
+        print(f"{args.images[0]}: {n} other face{'s' * (n > 1)} seen, the largest fitted "
+              "(--all-faces fits every face, --face K one)")
     for picture, run in zip(result.pictures, report.get("refine", [])):
         print(f"{picture.label}: refine {args.refine}: photometric loss {run['photometric_loss'][0]:.4f} -> "
               f"{run['photometric_loss'][-1]:.4f} in {run['runtime_s']:.1f} s")
@@ -113,4 +131,64 @@ def run(args):
           + (f"; wrote {args.out_mesh}" if args.out_mesh else "")
           + (f" {args.report}" if args.report else "")
           + (f" {args.out_texture}" if args.out_texture else ""))
+    return 0
+
+
+def _numbered(path, k: int):
+    """``out/fit.obj`` -> ``out/fit_K.obj`` (None stays None)."""
+    from pathlib import Path
+
+    if not path:
+        return None
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}_{k}{p.suffix}"))
+
+
+def _write_all_faces(args, results) -> int:
+    """``--all-faces``: each face's files as NAME_K.*, one overlay of every face with its
+    number; all or nothing."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..io.atomic import atomic_path
+    from ..overlay import draw_overlay, label_faces
+
+    written = []
+    try:
+        for k, result in enumerate(results):
+            written += result.write(mesh=_numbered(args.out_mesh, k), report=_numbered(args.report, k),
+                                    texture=_numbered(args.out_texture, k), texture_size=args.texture_size,
+                                    refine_render=_numbered(args.refine_render, k))
+        if args.overlay:
+            from PIL import Image
+
+            image = results[0].pictures[0].pixels()
+            style = None if args.overlay_style == "none" else args.overlay_style
+            for result in results:
+                image = draw_overlay(image, result.fit, 0, mesh=style)
+            boxes = [r.report["face"]["box_px"] for r in results]
+            image = label_faces(image, boxes, [str(r.report["face"]["index"]) for r in results])
+            if args.overlay_crop is not None:
+                b = np.array(boxes)
+                lo, hi = b[:, :2].min(0), b[:, 2:].max(0)
+                pad = args.overlay_crop * (hi - lo)
+                x0, y0 = np.maximum(0, np.floor(lo - pad)).astype(int)
+                x1, y1 = np.ceil(hi + pad).astype(int)
+                image = image[y0:y1, x0:x1]
+            with atomic_path(args.overlay) as tmp:
+                Image.fromarray(image).save(tmp, format="JPEG" if Path(args.overlay).suffix.lower() in
+                                            (".jpg", ".jpeg") else "PNG")
+            written.append(Path(args.overlay))
+    except BaseException:
+        for p in written:
+            Path(p).unlink(missing_ok=True)
+        raise
+    for result in results:
+        f, face = result.report["frames"][0], result.report["face"]
+        print(f"{args.images[0]} face {face['index']} of {face['faces_found']}: landmark RMSE "
+              f"{f['landmark_rmse_px']:.2f} px, yaw {f['yaw_deg']:.1f}, pitch {f['pitch_deg']:.1f}, "
+              f"roll {f['roll_deg']:.1f} deg")
+    print(f"{len(results)} face{'s' * (len(results) > 1)} fitted"
+          + (f"; wrote {' '.join(str(p) for p in written)}" if written else ""))
     return 0

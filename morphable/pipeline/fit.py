@@ -98,7 +98,7 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
                refine_options: dict | None = None, camera: str = "affine", focal_px=None,
                n_iterations: int = 4, robust=None, shared_identity: bool = True,
                landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0,
-               video_frames: int = 5) -> ImageFit:
+               video_frames: int = 5, face: int | None = None, all_faces: bool = False):
     """Fit a model to one person's face in photos, videos and image arrays, from landmarks
     given or detected.
 
@@ -125,6 +125,10 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     landmark_detector, face_detector : see :func:`morphable.detection.detect`
     landmark_std_px : float > 0 or "auto", px, the noise of points without a σ of their own
     video_frames : int >= 1, frames sampled from each video (all of a shorter one)
+    face : int >= 0, optional: fit face number ``face`` of a single photo or array, its faces
+        numbered from 0 left to right (:func:`morphable.detection.detect_all`); default the
+        largest
+    all_faces : bool, fit every face of a single photo or array, each on its own
 
     A detector that gives each point a σ (the landmark network) has its frames fitted with
     those σ (:func:`morphable.detection.result.landmark_noise`). Frames whose landmarks are
@@ -137,12 +141,16 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     Returns
     -------
     ImageFit: the fit, its report and the fitted pictures. The face fitted is each picture's
-    largest (what :func:`morphable.detection.detect` finds), all as one person.
+    largest (what :func:`morphable.detection.detect` finds), all as one person; a single photo's
+    report then says how many faces it shows (``faces_seen``). With ``all_faces``: a list of
+    ImageFit, one per face from left to right, each report's ``face`` its number, the faces
+    found and its box (px); with ``face``: that face's ImageFit, its report's ``face`` alike.
 
     Raises
     ------
-    InputError naming the input for a bad file, array or setting; FitError when a photo shows
-    no face.
+    InputError naming the input for a bad file, array or setting (``face`` beyond the faces
+    found; ``face`` or ``all_faces`` with landmarks given, several inputs or a video);
+    FitError when a photo shows no face.
 
     Examples
     --------
@@ -173,6 +181,16 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     if int(video_frames) < 1:
         raise InputError(f"video frames must be >= 1, got {video_frames}")
     describe(landmark_detector, face_detector)  # a bad choice fails before any work
+    if isinstance(model, (str, Path)):
+        from ..io.registry import load_model
+
+        model = load_model(str(model))
+    settings = dict(model=model, refine=refine, refine_options=refine_options, camera=camera,
+                    focal_px=focal_px, n_iterations=n_iterations, robust=robust,
+                    shared_identity=shared_identity, landmark_std_px=landmark_std_px)
+    if face is not None or all_faces:
+        return _fit_faces(images, given, face, all_faces, landmark_detector, face_detector, video_frames,
+                          settings)
     items, sources = [], []
     for i, (item, lm) in enumerate(zip(images, given)):
         expanded = pictures(item, i, video_frames)
@@ -198,11 +216,26 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
             found.append(None)
         kept.append((picture, lm))
     _check_every_video_kept(items, [p for p, _ in kept])
-    lms = one_landmark_set(points)
-    if isinstance(model, (str, Path)):
-        from ..io.registry import load_model
+    result = _fit_found(kept, points, found, **settings)
+    if any(p.frame is not None for p in items):
+        result.report["video_frames"] = [{"image": p.label, "video": p.frame.source, "frame": p.frame.index,
+                                          "time_s": round(p.frame.time_s, 4)}
+                                         for p in result.pictures if p.frame is not None]
+        result.report["frames_skipped"] = skipped
+    elif len(items) == 1 and sources[0] is None:
+        # a photo of several people: the largest fitted, and the report says how many there are
+        result.report["faces_seen"] = max(1, len(_all_faces(items[0], landmark_detector, face_detector)))
+    return result
 
-        model = load_model(str(model))
+
+def _fit_found(kept, points, found, *, model, refine, refine_options, camera, focal_px, n_iterations,
+               robust, shared_identity, landmark_std_px) -> ImageFit:
+    """The fit of the pictures ``kept`` (``[(Picture, landmarks given or None)]``) from their
+    points (each (L, 2) px) and detections (a Detection or None each)."""
+    from ..fitting import fit_landmarks
+    from ..fitting.options import detection_settings
+
+    lms = one_landmark_set(points)
     res = fit_landmarks(model, lms, np.array([p.size for p, _ in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
@@ -210,10 +243,6 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     fitted = [p for p, _ in kept]
     # "auto" may have found a photo's face with the network where the face mesh found none
     extra = {"landmarks": [_source(lm) if lm is not None else d.detector for (_, lm), d in zip(kept, found)]}
-    if any(p.frame is not None for p in items):
-        extra["video_frames"] = [{"image": p.label, "video": p.frame.source, "frame": p.frame.index,
-                                  "time_s": round(p.frame.time_s, 4)} for p in fitted if p.frame is not None]
-        extra["frames_skipped"] = skipped
     states = []
     if refine is not None:
         from .refine import refine_fit
@@ -222,6 +251,50 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
         extra["refine"] = runs
     report = {**res.to_dict(images=[p.label for p in fitted]), **extra}
     return ImageFit(fit=res, report=report, pictures=fitted, refinements=states)
+
+
+def _all_faces(picture: Picture, landmark_detector: str, face_detector: str) -> list:
+    """Every face of one picture, left to right (:func:`morphable.detection.detect_all`),
+    after :func:`~.inputs.detect_points`' size check."""
+    from ..detection import detect_all
+    from .inputs import check_detect_size
+
+    check_detect_size(picture)
+    return detect_all(picture.image, landmark_detector=landmark_detector, face_detector=face_detector)
+
+
+def _fit_faces(images, given, face, all_faces, landmark_detector, face_detector, video_frames, settings):
+    """``fit_images`` with ``face`` or ``all_faces``: one photo's faces, each fitted alone."""
+    from ..detection import face_box
+    from ..errors import FitError
+
+    what = "all_faces" if all_faces else "face"
+    if face is not None and all_faces:
+        raise InputError("give face or all_faces, not both")
+    if len(images) != 1:
+        raise InputError(f"{what}: for one photo, got {len(images)} inputs")
+    if given[0] is not None:
+        raise InputError(f"{what}: for detected faces; landmarks were given")
+    if face is not None and (isinstance(face, bool) or int(face) != face or face < 0):
+        raise InputError(f"face must be a face number >= 0, got {face}")
+    (picture, *more) = pictures(images[0], 0, video_frames)
+    if more or picture.frame is not None:
+        raise InputError(f"{picture.label}: {what} is for photos; a video's faces are tracked "
+                         "(morphable track, morphable.track_footage)")
+    faces = _all_faces(picture, landmark_detector, face_detector)
+    if not faces:
+        raise FitError(f"{picture.label}: no face found")
+    if face is not None and face >= len(faces):
+        raise InputError(f"{picture.label}: face {face} asked for, {len(faces)} "
+                         f"face{'s were' if len(faces) > 1 else ' was'} found (0 to {len(faces) - 1})")
+    chosen = range(len(faces)) if all_faces else [int(face)]
+    results = []
+    for k in chosen:
+        result = _fit_found([(picture, None)], [faces[k].points], [faces[k]], **settings)
+        result.report["face"] = {"index": k, "faces_found": len(faces),
+                                 "box_px": [round(float(v), 2) for v in face_box(faces[k])]}
+        results.append(result)
+    return results if all_faces else results[0]
 
 
 def _as_list(value, item_ndim: int) -> list:
