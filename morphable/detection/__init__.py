@@ -304,7 +304,7 @@ def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
     return out
 
 
-def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto") -> list:
+def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto", skip=None) -> list:
     """Every face of a photo, ordered left to right.
 
     The face detector's boxes (:func:`detect_faces`), each read by the landmark detector
@@ -315,6 +315,8 @@ def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "
     ----------
     image : path or (H, W, 3) array
     landmark_detector, face_detector : see :func:`detect`
+    skip : (S, 4) px boxes, optional: faces known already (a video's tracked faces); a face
+        box overlapping one of them by :data:`SAME_FACE_IOU` is neither read nor returned
 
     Returns
     -------
@@ -329,17 +331,20 @@ def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "
     from .boxes import iou
 
     img, name = as_image(image)
-    boxes = detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector)
+    known = [np.asarray(b, dtype=np.float64) for b in (() if skip is None else np.reshape(skip, (-1, 4)))]
+
+    def seen(box, among) -> bool:
+        return bool(among) and float(iou(np.array(among), box).max()) >= SAME_FACE_IOU
+
+    boxes = [b for b in detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector)
+             if not seen(b, known)]
     kept, kept_boxes = [], []
     for found in detect_in_boxes(img, boxes, landmark_detector=landmark_detector,
                                  face_detector=face_detector):
-        if found is None:
-            continue
-        b = face_box(found)
-        if kept_boxes and float(iou(np.array(kept_boxes), b).max()) >= SAME_FACE_IOU:
+        if found is None or seen(face_box(found), kept_boxes + known):
             continue
         kept.append(found)
-        kept_boxes.append(b)
+        kept_boxes.append(face_box(found))
     order = np.argsort([(b[0] + b[2]) / 2 for b in kept_boxes], kind="stable")
     return [kept[i] for i in order]
 

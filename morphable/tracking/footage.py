@@ -3,17 +3,18 @@
 :func:`track_footage` runs these steps (frames streamed, never all held):
 
 1. the shots (:func:`morphable.shots.find_shots`: hard cuts and fades), one decoding pass;
-2. every frame, in a second pass: at a shot's start and every :data:`REDETECT_S` seconds (a
-   face entering the picture) the face detector finds every face
-   (:func:`morphable.detection.detect_all`), and so does a quicker one
-   (:data:`QUICK_FACE_DETECTORS`) wherever a track has lost its face or no face is tracked; on the other
-   frames each track's face is read by the landmark detector in the box its previous frame's
-   points give (:func:`morphable.detection.detect_in_boxes`). The faces the face detector finds
-   are associated with the shot's running tracks by box overlap of their points
-   (:func:`associate`); one left over starts a track. A track ends at a cut, or where its box
-   holds no face (the face detector finds none there either, or the landmark network scores
-   the crop below :data:`~morphable.detection.result.FACE_PROBABILITY`: a back of a head, a
-   profile beyond what it reads); two tracks on one face end in one;
+2. every frame, in a second pass: each running track's face read by the landmark detector
+   in the box its previous frame's points give (:func:`morphable.detection.detect_in_boxes`);
+   the face detector (:func:`morphable.detection.detect_all`, the faces not tracked already)
+   at a shot's start and every :data:`REDETECT_S` seconds, and a quicker one
+   (:data:`QUICK_FACE_DETECTORS`) every :data:`QUICK_S` seconds and wherever a track has lost
+   its face. A face found is associated with the tracks that lost
+   theirs on that frame by box overlap (:func:`associate`: the landmark detector lost the face
+   in its carried box, the face detector found it there); one left over starts a track. A
+   track ends at a cut, or where its box holds no face (the face detector finds none there
+   either, or the landmark network scores the crop below
+   :data:`~morphable.detection.result.FACE_PROBABILITY`: a back of a head, a profile beyond
+   what it reads); two tracks on one face end in one;
 3. each track's face descriptor (:mod:`morphable.descriptors`) on its first frame and then
    every :data:`DESCRIPTOR_EVERY_S` seconds;
 4. the tracks joined into people (:func:`join_tracks`): tracks whose mean descriptors lie
@@ -39,18 +40,21 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "QUICK_FACE_DETECTORS",
+           "QUICK_S", "QUICK_FACE_DETECTORS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
-REDETECT_S = 1.0
-"""The face detector runs at least this often (seconds of video) while faces are tracked, so
-that a face entering the picture is found."""
-QUICK_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
+REDETECT_S = 2.0
+"""The face detector as chosen runs at a shot's start and then this often (seconds of video)."""
+QUICK_S = 0.2
+"""Between those, a quicker face detector (:data:`QUICK_FACE_DETECTORS`) runs this often and
+on every frame where a track has lost its face, so that a face entering the picture is found
+within a few frames. Both read only the faces not tracked already."""
+QUICK_FACE_DETECTORS = {"facemesh": "full-range", "network": "full-range", "fused": "full-range",
                         "dlib": "hog"}
-"""With ``face_detector="auto"``, the face detector of the searches between a shot's start and
-every :data:`REDETECT_S` (a lost face, no face tracked), per landmark detector: mediapipe's
-short-range detector (2 ms on a 640 x 480 frame without a face, where "auto" ends in the
-network's window search, about 1.2 s, and the full-range detector in its tiles, 70 ms)."""
+"""With ``face_detector="auto"``, the quicker face detector per landmark detector: mediapipe's
+full-range detector (5 ms on a 640 x 480 frame with faces, 70 ms without, in its tiles, where
+"auto" ends in the network's window search, about 1.2 s; the short-range detector, 2 ms,
+misses faces under about 100 px there)."""
 DESCRIPTOR_EVERY_S = 1.0
 """A track's face descriptor is computed on its first frame and then this often (seconds)."""
 MAX_DESCRIPTORS = 5
@@ -306,13 +310,14 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     shots = find_shots(path) if shots is None else [(int(a), int(b)) for a, b in shots]
     fps = info.fps or 30.0
     redetect, every = max(1, round(REDETECT_S * fps)), max(1, round(DESCRIPTOR_EVERY_S * fps))
+    quick_every = max(1, round(QUICK_S * fps))
     starts = {a: k for k, (a, _) in enumerate(shots)}
     detectors = {"landmark_detector": landmark_detector, "face_detector": face_detector}
     quick = dict(detectors)
     if face_detector == "auto":
         quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
     running, ended, detected, times = [], [], [], []
-    shot, last_detect, next_id = -1, -10 ** 9, 0
+    shot, last_detect, last_quick, next_id = -1, -10 ** 9, -10 ** 9, 0
     frames = iter_frames(path)
     if progress:
         from tqdm import tqdm
@@ -328,14 +333,13 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
             running = []
         # each running track's face in its carried box
         found = detect_in_boxes(image, [t.box for t in running], **detectors) if running else []
-        kept = []
+        kept, lost = [], []
         for t, det in zip(running, found):
             if det is None:
-                ended.append(t)
+                lost.append(t)
                 continue
             t.add(i, det)
             kept.append(t)
-        lost = len(kept) < len(running)
         running = []
         for t in kept:           # two tracks that have drifted onto one face: the older one stays
             if running and float(iou(np.array([r.box for r in running]), t.box).max()) >= MATCH_IOU:
@@ -344,20 +348,24 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
             else:
                 running.append(t)
         full = full or i - last_detect >= redetect
-        ran = full or lost or not running
+        ran = full or bool(lost) or i - last_quick >= quick_every
         detected.append(ran)
         times.append(frame.time_s)
         if ran:
             last_detect = i if full else last_detect
-            faces = detect_all(image, **(detectors if full else quick))
-            boxes = [face_box(d) for d in faces]
-            taken = {f for _, f in associate([t.box for t in running], boxes)}
+            last_quick = i
+            faces = detect_all(image, **(detectors if full else quick), skip=[t.box for t in running])
+            pairs = dict((f, t) for t, f in associate([t.box for t in lost], [face_box(d) for d in faces]))
             for k, det in enumerate(faces):
-                if k not in taken:
+                if k in pairs:              # the face its track lost in the carried box, found
+                    t = lost[pairs[k]]
+                else:
                     t = _Running(next_id, shot)
                     next_id += 1
-                    t.add(i, det)
-                    running.append(t)
+                t.add(i, det)
+                running.append(t)
+            lost = [t for k, t in enumerate(lost) if k not in pairs.values()]
+        ended += lost
         due = [t for t in running if i - t.last_descriptor >= every and len(t.descriptors) < MAX_DESCRIPTORS]
         if due:
             for t, d in zip(due, face_descriptors(image, [t.rows[-1][2] for t in due])):
