@@ -9,7 +9,7 @@
 
 Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
 """
-from .footage import (DESCRIPTOR_EVERY_S, IDENTITY_FRAMES, MATCH_IOU, MAX_DESCRIPTORS, REDETECT_S, STATUSES,
+from .footage import (DESCRIPTOR_EVERY_S, IDENTITY_FRAMES, MATCH_IOU, MAX_DESCRIPTORS, QUICK_S, REDETECT_S, STATUSES,
                       FootageResult, TrackInfo, associate, join_tracks, track_footage)
 from .single import (CHUNK_BYTES, DEFAULT_IDENTITY, DEFAULT_SMOOTHING_HZ, IDENTITY_MODES, LOST_RMSE_FRACTION,
                      TrackResult, carried_box, chunk_frames, fit_frames, fixed_identity_model,
@@ -19,4 +19,4 @@ __all__ = ["TrackResult", "track_video", "write_track_glb", "fixed_identity_mode
            "fit_frames", "chunk_frames", "smooth_trajectories", "solve_prior", "DEFAULT_SMOOTHING_HZ",
            "LOST_RMSE_FRACTION", "CHUNK_BYTES", "IDENTITY_MODES", "DEFAULT_IDENTITY",
            "FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
+           "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES", "QUICK_S"]

@@ -8,7 +8,8 @@
    the face detector (:func:`morphable.detection.detect_all`, the faces not tracked already)
    at a shot's start and every :data:`REDETECT_S` seconds, and a quicker one
    (:data:`QUICK_FACE_DETECTORS`) every :data:`QUICK_S` seconds and wherever a track has lost
-   its face. A face found is associated with the tracks that lost
+   its face, the quickest (:data:`EMPTY_FACE_DETECTORS`) on the other frames where no face is
+   tracked. A face found is associated with the tracks that lost
    theirs on that frame by box overlap (:func:`associate`: the landmark detector lost the face
    in its carried box, the face detector found it there); one left over starts a track. A
    track ends at a cut, or where its box holds no face (the face detector finds none there
@@ -40,15 +41,27 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "QUICK_S", "QUICK_FACE_DETECTORS",
+           "QUICK_S", "QUICK_FACE_DETECTORS", "EMPTY_FACE_DETECTORS", "TRACKING_DETECTORS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
 REDETECT_S = 2.0
 """The face detector as chosen runs at a shot's start and then this often (seconds of video)."""
-QUICK_S = 0.2
+QUICK_S = 0.25
 """Between those, a quicker face detector (:data:`QUICK_FACE_DETECTORS`) runs this often and
 on every frame where a track has lost its face, so that a face entering the picture is found
-within a few frames. Both read only the faces not tracked already."""
+within a few frames; on frames where no face is tracked, the quickest
+(:data:`EMPTY_FACE_DETECTORS`) runs in between. All read only the faces not tracked already."""
+EMPTY_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
+                        "dlib": "hog"}
+"""With ``face_detector="auto"``, the face detector of frames where no face is tracked, between
+the quick searches: mediapipe's short-range detector (2 ms on a 640 x 480 frame without a face;
+it finds a face of 100 px or more there at once, the quick searches the smaller ones)."""
+TRACKING_DETECTORS = {"fused": "network"}
+"""``landmark_detector="auto"`` resolved (:func:`morphable.detection.resolve_detectors`) -> what
+the tracker reads faces with: the landmark network alone where "auto" would fuse it with the
+face mesh. On the benchmark's clips (``python -m evaluation.bench_footage --clips 3``,
+docs/video.md) the fused reading costs 2.4 x the network's per face (24 against 8 ms) for an
+eye-centre error no lower (3.18 against 3.21 % of the interocular distance)."""
 QUICK_FACE_DETECTORS = {"facemesh": "full-range", "network": "full-range", "fused": "full-range",
                         "dlib": "hog"}
 """With ``face_detector="auto"``, the quicker face detector per landmark detector: mediapipe's
@@ -269,7 +282,8 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     ----------
     path : a video file (:mod:`morphable.video`)
     model : MorphableModel or name/path
-    landmark_detector, face_detector : see :func:`morphable.detection.detect`
+    landmark_detector, face_detector : see :func:`morphable.detection.detect` ("auto": as
+        resolved there, except :data:`TRACKING_DETECTORS`)
     smoothing_hz : cut-off of the temporal prior along each track, Hz (0: off; None:
         :data:`~morphable.tracking.DEFAULT_SMOOTHING_HZ`)
     identity_frames : int >= 1, frames per person fitted for their identity
@@ -302,6 +316,8 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     if not smoothing_hz >= 0:
         raise InputError(f"smoothing must be >= 0 Hz, got {smoothing_hz}")
     describe(landmark_detector, face_detector)          # a bad choice fails before any work
+    if landmark_detector == "auto":
+        landmark_detector = TRACKING_DETECTORS.get(resolve_detectors()[0], "auto")
     info = probe(path)
     if isinstance(model, (str, Path)):
         from ..io.registry import load_model
@@ -313,9 +329,11 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     quick_every = max(1, round(QUICK_S * fps))
     starts = {a: k for k, (a, _) in enumerate(shots)}
     detectors = {"landmark_detector": landmark_detector, "face_detector": face_detector}
-    quick = dict(detectors)
+    quick, empty = dict(detectors), dict(detectors)
     if face_detector == "auto":
-        quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
+        resolved = resolve_detectors(landmark_detector)[0]
+        quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolved, "auto")
+        empty["face_detector"] = EMPTY_FACE_DETECTORS.get(resolved, "auto")
     running, ended, detected, times = [], [], [], []
     shot, last_detect, last_quick, next_id = -1, -10 ** 9, -10 ** 9, 0
     frames = iter_frames(path)
@@ -348,13 +366,15 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
             else:
                 running.append(t)
         full = full or i - last_detect >= redetect
-        ran = full or bool(lost) or i - last_quick >= quick_every
+        searched = full or bool(lost) or i - last_quick >= quick_every
+        ran = searched or not running
         detected.append(ran)
         times.append(frame.time_s)
         if ran:
             last_detect = i if full else last_detect
-            last_quick = i
-            faces = detect_all(image, **(detectors if full else quick), skip=[t.box for t in running])
+            last_quick = i if searched else last_quick
+            chosen = detectors if full else quick if searched else empty
+            faces = detect_all(image, **chosen, skip=[t.box for t in running])
             pairs = dict((f, t) for t, f in associate([t.box for t in lost], [face_box(d) for d in faces]))
             for k, det in enumerate(faces):
                 if k in pairs:              # the face its track lost in the carried box, found
