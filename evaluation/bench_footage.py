@@ -13,7 +13,8 @@ Three measurements (docs/video.md, "Footage: several people and shot cuts"):
   interrupted while present and resumed in the same shot), missed and false faces, MOTA (1 - (misses + false + switches) /
   faces present), the eye-centre NME of the London faces (their templates' pupils against the
   mean of the fitted iBUG eye points, over the interocular distance), and frames/s;
-- ``--speed``: the tracking loop's frames/s for one face and for three faces, 640 x 480;
+- ``--speed``: the tracking loop's frames/s for one face and for three faces, 640 x 480
+  (``--speed-detectors network fused --rounds 3``: the landmark detectors interleaved);
 - ``--group N``: the first N 300-W AFW photos (**research use only**) with two faces or more
   annotated: faces found by :func:`morphable.detection.detect_all` and fitted
   (``morphable.fit_images(..., all_faces=True)``) against the faces annotated;
@@ -344,10 +345,12 @@ def _moving_clip(path, data, n_faces: int, n_frames: int = 150) -> None:
     write_video(path, frames(), fps=FPS)
 
 
-def speed(data, folder, n_frames: int = 150, landmark_detector: str = "auto") -> dict:
+def speed(data, folder, n_frames: int = 150, detectors=("auto",), rounds: int = 1) -> dict:
     """Frames/s of :func:`~morphable.tracking.track_footage` on 640 x 480 clips of one and of
-    three faces (the model loaded and the detectors warmed up first): the whole call, and the
-    tracking loop alone (the shots given)."""
+    three faces, for each landmark detector of ``detectors`` in turn, ``rounds`` times (the
+    model loaded and the detectors warmed up first; interleaved, so that a change of the
+    machine's load falls on all): the median of the tracking loop alone (the shots given) and
+    of the whole call."""
     import os
 
     from morphable.io.registry import load_model
@@ -355,22 +358,27 @@ def speed(data, folder, n_frames: int = 150, landmark_detector: str = "auto") ->
     from morphable.tracking import track_footage
 
     model = load_model("sfm")
-    out = {}
     warm = Path(folder) / "warm_up.mp4"
     _moving_clip(warm, data, 1, 5)
-    track_footage(warm, model=model, landmark_detector=landmark_detector)   # networks loaded once, untimed
+    for d in detectors:
+        track_footage(warm, model=model, landmark_detector=d)     # networks loaded, untimed
+    clips = {}
     for n in (1, 3):
-        path = Path(folder) / f"speed_{n}.mp4"
-        _moving_clip(path, data, n, n_frames)
-        t0 = time.perf_counter()
-        shots = find_shots(path)
-        t1 = time.perf_counter()
-        result = track_footage(path, model=model, shots=shots, landmark_detector=landmark_detector)
-        t2 = time.perf_counter()
-        out[f"{n}_face{'s' * (n > 1)}"] = {"frames": n_frames, "people": len(result.people),
-                                           "shots_fps": n_frames / (t1 - t0), "loop_fps": n_frames / (t2 - t1),
-                                           "end_to_end_fps": n_frames / (t2 - t0)}
-    out["landmark_detector"] = landmark_detector
+        clips[n] = Path(folder) / f"speed_{n}.mp4"
+        _moving_clip(clips[n], data, n, n_frames)
+    times = {}
+    for _ in range(int(rounds)):
+        for n in (1, 3):
+            for d in detectors:
+                t0 = time.perf_counter()
+                shots = find_shots(clips[n])
+                t1 = time.perf_counter()
+                track_footage(clips[n], model=model, shots=shots, landmark_detector=d)
+                t2 = time.perf_counter()
+                times.setdefault((n, d), []).append((n_frames / (t2 - t1), n_frames / (t2 - t0)))
+    out = {f"{n} face{'s' * (n > 1)}, {d}": {"loop_fps": float(np.median([a for a, _ in v])),
+                                              "end_to_end_fps": float(np.median([b for _, b in v])),
+                                              "runs": len(v)} for (n, d), v in times.items()}
     out["load_average"] = list(os.getloadavg())
     return out
 
@@ -381,6 +389,9 @@ def main(argv=None) -> int:
     p.add_argument("--data", default="../shared/data")
     p.add_argument("--clips", type=int, default=0, metavar="N", help="multi-shot clips (seeds 0..N-1)")
     p.add_argument("--speed", action="store_true", help="frames/s for one and three faces")
+    p.add_argument("--speed-detectors", nargs="+", metavar="NAME",
+                   help="--speed: these landmark detectors in turn (default --landmark-detector)")
+    p.add_argument("--rounds", type=int, default=1, help="--speed: rounds, medians reported")
     p.add_argument("--group", type=int, default=0, metavar="N", help="AFW group photos")
     p.add_argument("--calibrate", action="store_true", help="the descriptor threshold")
     p.add_argument("--landmark-detector", default="auto",
@@ -412,7 +423,8 @@ def main(argv=None) -> int:
             print(json.dumps(row))
         results["clips"] = rows
     if args.speed:
-        results["speed"] = speed(args.data, work, landmark_detector=args.landmark_detector)
+        results["speed"] = speed(args.data, work, detectors=args.speed_detectors or [args.landmark_detector],
+                                 rounds=args.rounds)
         print(json.dumps(results["speed"], indent=1))
     if args.group:
         results["group"] = group_photos(args.data, args.group)
