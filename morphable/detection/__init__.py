@@ -323,10 +323,11 @@ def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "
     list of :class:`~.result.Detection`, by the centre of their :func:`face_box` from left to
     right (an empty list: no face).
 
-    >>> faces = detect_all("../shared/data/images/breakingbad.jpg")
-    >>> len(faces), [round(float(face_box(f)[0])) for f in faces] == sorted(
-    ...     round(float(face_box(f)[0])) for f in faces)
-    (3, True)
+    >>> from morphable.io.landmark_files import read_pts
+    >>> faces = detect_all("../shared/data/images/breakingbad.jpg")    # two men, the right one annotated
+    >>> truth = read_pts("../shared/data/images/breakingbad.pts")      # a face ~360 px wide
+    >>> [bool(np.median(np.linalg.norm(f.ibug68 - truth, axis=1)) < 15) for f in faces]
+    [False, True]
     """
     from .boxes import iou
 
