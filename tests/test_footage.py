@@ -278,3 +278,27 @@ def test_one_frame_video(two_faces):
     summary = json.loads((d / "one" / "track.json").read_text())
     assert summary["frames"] == 1 and summary["shots"] == [[0, 1]] and len(summary["people"]) == 2
     assert [f["person"] for f in summary["frame_status"][0]["faces"]] == [0, 1]
+
+
+def test_phone_rotation_and_variable_frame_rate(two_faces):
+    """A phone clip stored on its side with rotation metadata is tracked upright; a
+    variable-frame-rate file keeps each frame's time."""
+    from PIL import Image
+
+    from morphable.tracking import track_footage
+    from morphable.video import write_video
+
+    d = two_faces
+    photo = np.asarray(Image.open(d / "two.png"))[:256, :480]
+    # stored turned 90 degrees clockwise, with a display rotation of 90 (counter-clockwise) to undo it
+    write_video(d / "phone.mp4", [np.ascontiguousarray(np.rot90(photo, -1))] * 4, rotation_deg=90)
+    times = [0.0, 1 / 30, 1 / 30 + 0.1, 1 / 30 + 0.2]       # as tests/test_video.py writes one
+    write_video(d / "vfr.mkv", [photo] * 4, times_s=times)
+    for name in ("phone.mp4", "vfr.mkv"):
+        result = track_footage(d / name)
+        assert result.image_size == (480, 256), name
+        assert len(result.people) == 2 and all(p.tracked.all() for p in result.people), name
+        # the faces upright where the photo has them: the left one left of 180 px, eyes above mouth
+        lm = result.people[0].landmarks_68_px[0]
+        assert np.nanmean(lm[:, 0]) < 180 and np.nanmean(lm[36:48, 1]) < np.nanmean(lm[48:68, 1]), name
+    np.testing.assert_allclose(result.people[0].time_s, times, atol=2e-3)
