@@ -302,3 +302,19 @@ def test_phone_rotation_and_variable_frame_rate(two_faces):
         lm = result.people[0].landmarks_68_px[0]
         assert np.nanmean(lm[:, 0]) < 180 and np.nanmean(lm[36:48, 1]) < np.nanmean(lm[48:68, 1]), name
     np.testing.assert_allclose(result.people[0].time_s, times, atol=2e-3)
+
+
+def test_detections_waiting_on_disk_give_the_same_track(people_clip, footage, monkeypatch):
+    """A track's older detections go to disk in chunks (memory bounded for long videos): with
+    chunks of 3 rows the result is the one held in memory."""
+    from morphable.tracking import footage as module
+    from morphable.tracking import track_footage
+
+    monkeypatch.setattr(module, "CHUNK_ROWS", 3)
+    again = track_footage(people_clip["path"])
+    assert [(t.person, t.first_frame, t.last_frame) for t in again.tracks] == \
+        [(t.person, t.first_frame, t.last_frame) for t in footage.tracks]
+    for a, b in zip(again.people, footage.people):
+        np.testing.assert_array_equal(a.tracked, b.tracked)
+        np.testing.assert_allclose(a.euler_deg[a.tracked], b.euler_deg[b.tracked])
+        np.testing.assert_allclose(a.identity, b.identity)

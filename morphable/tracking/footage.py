@@ -26,14 +26,17 @@
    face); each frame's pose and expression with it held (:func:`~morphable.tracking.fit_frames`),
    then the temporal prior along each track (:func:`~morphable.tracking.smooth_trajectories`).
 
-What is held in memory: the detected points of every face in every frame (float32, about
-6 KB per face and frame), never the frames.
+What is held in memory: per face and frame its box, score and fitted pose (about 0.2 KB);
+its detected points (float32, about 6 KB) only for a running track's last :data:`CHUNK_ROWS`
+frames, the older ones in a temporary folder until the fits; never the frames.
 
 Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
 """
 from __future__ import annotations
 
 import dataclasses
+import pickle
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +44,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "QUICK_S", "QUICK_FACE_DETECTORS", "EMPTY_FACE_DETECTORS", "TRACKING_DETECTORS",
+           "QUICK_S", "QUICK_FACE_DETECTORS", "EMPTY_FACE_DETECTORS", "TRACKING_DETECTORS", "CHUNK_ROWS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
 REDETECT_S = 2.0
@@ -173,35 +176,62 @@ class FootageResult:
                 for i in range(self.n_frames)]
 
 
-@dataclasses.dataclass
-class _Running:
-    """A track being followed: its rows so far (compact float32 copies of the detections)."""
+CHUNK_ROWS = 256
+"""A track's detections held in memory at most (about 6 KB each); older ones wait on disk in
+chunks of this many, so that memory does not grow with the video's length."""
 
-    id: int
-    shot: int
-    frames: list = dataclasses.field(default_factory=list)
-    rows: list = dataclasses.field(default_factory=list)
-    descriptors: list = dataclasses.field(default_factory=list)
-    last_descriptor: int = -10 ** 9
+
+class _Running:
+    """A track being followed: its frames, face scores and boxes, and its detections as
+    compact float32 copies, all but the last :data:`CHUNK_ROWS` in ``folder`` on disk."""
+
+    def __init__(self, id: int, shot: int, folder: Path):
+        self.id, self.shot, self.folder = id, shot, Path(folder)
+        self.frames, self.scores, self.boxes, self.descriptors = [], [], [], []
+        self.last_descriptor = -10 ** 9
+        self.recent, self.n_chunks, self.loaded = [], 0, (None, None)
 
     def add(self, frame: int, det) -> None:
         from ..detection import face_box
 
+        if len(self.recent) == CHUNK_ROWS:
+            with open(self.folder / f"{self.id}_{self.n_chunks}.pkl", "wb") as f:
+                pickle.dump(self.recent, f, protocol=pickle.HIGHEST_PROTOCOL)
+            self.recent, self.n_chunks = [], self.n_chunks + 1
         f32 = (lambda a: None if a is None else np.asarray(a, np.float32))     # noqa: E731
         self.frames.append(frame)
-        self.rows.append((f32(det.points), f32(det.sigma_px), f32(det.ibug68), f32(det.ibug68_sigma_px),
-                          det.scheme, det.convention, det.detector,
-                          np.nan if det.score is None else float(det.score), face_box(det)))
+        self.scores.append(np.nan if det.score is None else float(det.score))
+        self.boxes.append(face_box(det))
+        self.recent.append((f32(det.points), f32(det.sigma_px), f32(det.ibug68), f32(det.ibug68_sigma_px),
+                            det.scheme, det.convention, det.detector))
+
+    def drop_last(self) -> None:
+        """Forget the row just added (its face is another track's)."""
+        for rows in (self.frames, self.scores, self.boxes, self.recent):
+            rows.pop()
 
     @property
     def box(self) -> np.ndarray:
-        return self.rows[-1][-1]
+        return self.boxes[-1]
+
+    @property
+    def ibug68(self) -> np.ndarray:
+        return self.recent[-1][2]
 
     def detection(self, k: int):
         from ..detection.result import Detection
 
-        p, s, i, si, scheme, convention, name, score, box = self.rows[k]
-        return Detection(p, s, i, si, scheme, convention, name, None if np.isnan(score) else score, box)
+        chunk, j = divmod(k, CHUNK_ROWS)
+        if chunk == self.n_chunks:
+            rows = self.recent
+        else:
+            if self.loaded[0] != chunk:
+                with open(self.folder / f"{self.id}_{chunk}.pkl", "rb") as f:
+                    self.loaded = chunk, pickle.load(f)
+            rows = self.loaded[1]
+        p, s, i, si, scheme, convention, name = rows[j]
+        score = self.scores[k]
+        return Detection(p, s, i, si, scheme, convention, name, None if np.isnan(score) else score, self.boxes[k])
 
 
 def associate(track_boxes, found_boxes, min_iou: float = MATCH_IOU) -> list:
@@ -334,87 +364,93 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
         resolved = resolve_detectors(landmark_detector)[0]
         quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolved, "auto")
         empty["face_detector"] = EMPTY_FACE_DETECTORS.get(resolved, "auto")
-    running, ended, detected, times = [], [], [], []
-    shot, last_detect, last_quick, next_id = -1, -10 ** 9, -10 ** 9, 0
-    frames = iter_frames(path)
-    if progress:
-        from tqdm import tqdm
+    # the detections wait on disk, a track's last CHUNK_ROWS in memory (_Running)
+    spill_dir = tempfile.TemporaryDirectory(prefix="morphable-track-")
+    spill = Path(spill_dir.name)
+    try:
+        running, ended, detected, times = [], [], [], []
+        shot, last_detect, last_quick, next_id = -1, -10 ** 9, -10 ** 9, 0
+        frames = iter_frames(path)
+        if progress:
+            from tqdm import tqdm
 
-        # disable=None: a bar on a terminal only, so that a failure stays one line in a log
-        frames = tqdm(frames, total=info.n_frames, unit="frame", desc=str(path), leave=False, disable=None)
-    for frame in frames:
-        i, image = frame.index, frame.image
-        full = i in starts or shot < 0
-        if full:
-            shot = starts.get(i, max(shot, 0))
-            ended += running
-            running = []
-        # each running track's face in its carried box
-        found = detect_in_boxes(image, [t.box for t in running], **detectors) if running else []
-        kept, lost = [], []
-        for t, det in zip(running, found):
-            if det is None:
-                lost.append(t)
-                continue
-            t.add(i, det)
-            kept.append(t)
-        running = []
-        for t in kept:           # two tracks that have drifted onto one face: the older one stays
-            if running and float(iou(np.array([r.box for r in running]), t.box).max()) >= MATCH_IOU:
-                t.frames.pop(), t.rows.pop()
-                ended.append(t)
-            else:
-                running.append(t)
-        full = full or i - last_detect >= redetect
-        searched = full or bool(lost) or i - last_quick >= quick_every
-        ran = searched or not running
-        detected.append(ran)
-        times.append(frame.time_s)
-        if ran:
-            last_detect = i if full else last_detect
-            last_quick = i if searched else last_quick
-            chosen = detectors if full else quick if searched else empty
-            faces = detect_all(image, **chosen, skip=[t.box for t in running])
-            pairs = dict((f, t) for t, f in associate([t.box for t in lost], [face_box(d) for d in faces]))
-            for k, det in enumerate(faces):
-                if k in pairs:              # the face its track lost in the carried box, found
-                    t = lost[pairs[k]]
-                else:
-                    t = _Running(next_id, shot)
-                    next_id += 1
+            # disable=None: a bar on a terminal only, so that a failure stays one line in a log
+            frames = tqdm(frames, total=info.n_frames, unit="frame", desc=str(path), leave=False, disable=None)
+        for frame in frames:
+            i, image = frame.index, frame.image
+            full = i in starts or shot < 0
+            if full:
+                shot = starts.get(i, max(shot, 0))
+                ended += running
+                running = []
+            # each running track's face in its carried box
+            found = detect_in_boxes(image, [t.box for t in running], **detectors) if running else []
+            kept, lost = [], []
+            for t, det in zip(running, found):
+                if det is None:
+                    lost.append(t)
+                    continue
                 t.add(i, det)
-                running.append(t)
-            lost = [t for k, t in enumerate(lost) if k not in pairs.values()]
-        ended += lost
-        due = [t for t in running if i - t.last_descriptor >= every and len(t.descriptors) < MAX_DESCRIPTORS]
-        if due:
-            for t, d in zip(due, face_descriptors(image, [t.rows[-1][2] for t in due])):
-                t.descriptors.append(d)
-                t.last_descriptor = i
-    ended += running
-    ended = [t for t in ended if t.frames]
-    if not ended:
-        raise InputError(f"{path}: no face found in any of its {len(detected)} frames")
-    ended.sort(key=lambda t: t.id)
-    person = join_tracks([np.array(t.descriptors).reshape(-1, 128) for t in ended],
-                         [np.array(t.frames) for t in ended], descriptor_threshold)
-    threshold = SAME_PERSON_DISTANCE if descriptor_threshold is None else float(descriptor_threshold)
-    people, tracks = [], []
-    times = np.array(times, dtype=np.float64)
-    for p in range(int(person.max()) + 1):
-        mine = [t for t, q in zip(ended, person) if q == p]
-        result, status = _fit_person(model, mine, len(detected), times, fps, (info.width, info.height),
-                                     int(identity_frames), smoothing_hz)
-        result.detected = np.array(detected, dtype=bool)
-        people.append(result)
-        for t in mine:
-            tracks.append(TrackInfo(id=t.id, person=p, shot=t.shot, frames=np.array(t.frames, np.int64),
-                                    status=status[t.id], score=np.array([r[7] for r in t.rows]),
-                                    box=np.array([r[8] for r in t.rows], dtype=np.float64).reshape(-1, 4),
-                                    descriptors=np.array(t.descriptors, np.float32).reshape(-1, 128)))
-    tracks.sort(key=lambda t: t.id)
-    return FootageResult(shots=shots, tracks=tracks, people=people, detected=np.array(detected, dtype=bool),
-                         fps=float(fps), image_size=(info.width, info.height), descriptor_threshold=threshold)
+                kept.append(t)
+            running = []
+            for t in kept:           # two tracks that have drifted onto one face: the older one stays
+                if running and float(iou(np.array([r.box for r in running]), t.box).max()) >= MATCH_IOU:
+                    t.drop_last()
+                    ended.append(t)
+                else:
+                    running.append(t)
+            full = full or i - last_detect >= redetect
+            searched = full or bool(lost) or i - last_quick >= quick_every
+            ran = searched or not running
+            detected.append(ran)
+            times.append(frame.time_s)
+            if ran:
+                last_detect = i if full else last_detect
+                last_quick = i if searched else last_quick
+                chosen = detectors if full else quick if searched else empty
+                faces = detect_all(image, **chosen, skip=[t.box for t in running])
+                pairs = dict((f, t) for t, f in associate([t.box for t in lost], [face_box(d) for d in faces]))
+                for k, det in enumerate(faces):
+                    if k in pairs:              # the face its track lost in the carried box, found
+                        t = lost[pairs[k]]
+                    else:
+                        t = _Running(next_id, shot, spill)
+                        next_id += 1
+                    t.add(i, det)
+                    running.append(t)
+                lost = [t for k, t in enumerate(lost) if k not in pairs.values()]
+            ended += lost
+            due = [t for t in running if i - t.last_descriptor >= every and len(t.descriptors) < MAX_DESCRIPTORS]
+            if due:
+                for t, d in zip(due, face_descriptors(image, [t.ibug68 for t in due])):
+                    t.descriptors.append(d)
+                    t.last_descriptor = i
+        ended += running
+        ended = [t for t in ended if t.frames]
+        if not ended:
+            raise InputError(f"{path}: no face found in any of its {len(detected)} frames")
+        ended.sort(key=lambda t: t.id)
+        person = join_tracks([np.array(t.descriptors).reshape(-1, 128) for t in ended],
+                             [np.array(t.frames) for t in ended], descriptor_threshold)
+        threshold = SAME_PERSON_DISTANCE if descriptor_threshold is None else float(descriptor_threshold)
+        people, tracks = [], []
+        times = np.array(times, dtype=np.float64)
+        for p in range(int(person.max()) + 1):
+            mine = [t for t, q in zip(ended, person) if q == p]
+            result, status = _fit_person(model, mine, len(detected), times, fps, (info.width, info.height),
+                                         int(identity_frames), smoothing_hz)
+            result.detected = np.array(detected, dtype=bool)
+            people.append(result)
+            for t in mine:
+                tracks.append(TrackInfo(id=t.id, person=p, shot=t.shot, frames=np.array(t.frames, np.int64),
+                                        status=status[t.id], score=np.array(t.scores),
+                                        box=np.array(t.boxes, dtype=np.float64).reshape(-1, 4),
+                                        descriptors=np.array(t.descriptors, np.float32).reshape(-1, 128)))
+        tracks.sort(key=lambda t: t.id)
+        return FootageResult(shots=shots, tracks=tracks, people=people, detected=np.array(detected, dtype=bool),
+                             fps=float(fps), image_size=(info.width, info.height), descriptor_threshold=threshold)
+    finally:
+        spill_dir.cleanup()
 
 
 def _fit_person(model, tracks, n_frames: int, times, fps: float, size, identity_frames: int,
@@ -443,7 +479,7 @@ def _fit_person(model, tracks, n_frames: int, times, fps: float, size, identity_
     euler, trans = np.full((F, 3), np.nan), np.full((F, 3), np.nan)
     scale, expr, rmse = np.full(F, np.nan), np.full((F, E), np.nan), np.full(F, np.nan)
     sigma, tracked = np.full(F, np.nan), np.zeros(F, bool)
-    L = max(len(t.rows[0][0]) for t in tracks)
+    L = max(len(t.detection(0).points) for t in tracks)
     detector = np.full((F, L, 2), np.nan, np.float32)
     status = {}
     for t in tracks:
