@@ -26,9 +26,10 @@
    face); each frame's pose and expression with it held (:func:`~morphable.tracking.fit_frames`),
    then the temporal prior along each track (:func:`~morphable.tracking.smooth_trajectories`).
 
-What is held in memory: per face and frame its box, score and fitted pose (about 0.2 KB);
-its detected points (float32, about 6 KB) only for a running track's last :data:`CHUNK_ROWS`
-frames, the older ones in a temporary folder until the fits; never the frames.
+What is held in memory: never the frames; a face's detected points (float32, about 6 KB a
+frame) only for a running track's last :data:`CHUNK_ROWS` frames, the older ones in a
+temporary folder until the fits; the result, per person, arrays over all the video's frames
+(about 5 KB a frame: :class:`~morphable.tracking.TrackResult`'s points).
 
 Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
 """
