@@ -318,3 +318,29 @@ def test_detections_waiting_on_disk_give_the_same_track(people_clip, footage, mo
         np.testing.assert_array_equal(a.tracked, b.tracked)
         np.testing.assert_allclose(a.euler_deg[a.tracked], b.euler_deg[b.tracked])
         np.testing.assert_allclose(a.identity, b.identity)
+
+
+def test_no_mesh_where_the_box_holds_no_face(data_dir, tmp_path):
+    """A face replaced mid-shot by a featureless head-coloured blob (as a back of a head is):
+    the track ends there, reported with its face score, and no mesh is fitted on the blob."""
+    from morphable.tracking import track_footage
+    from morphable.video import write_video
+
+    face = _face(data_dir, 4, 150)
+    blob = np.full_like(face, 120)
+    yy, xx = np.mgrid[:150, :150]
+    blob[((yy - 70) / 60) ** 2 + ((xx - 75) / 45) ** 2 < 1] = (150, 110, 90)
+    frames = []
+    for i in range(10):
+        f = np.full((H, W, 3), 70, np.uint8)
+        _paste(f, face if i < 6 else blob, 80 + i, 45)
+        frames.append(f)
+    write_video(tmp_path / "turn.mp4", frames, fps=25)
+    result = track_footage(tmp_path / "turn.mp4")
+    assert len(result.shots) == 1 and len(result.people) == 1, result.shots
+    (track,) = result.tracks
+    assert (track.first_frame, track.last_frame) == (0, 5) and track.lost[0] == 6
+    assert track.lost[1] is None or track.lost[1] < 0.5
+    np.testing.assert_array_equal(result.people[0].tracked, np.arange(10) < 6)
+    status = result.frame_status()
+    assert [f["status"] for f in status[6]["faces"]] == ["lost"] and status[7]["faces"] == []

@@ -272,7 +272,7 @@ def face_box(detection: Detection) -> np.ndarray:
 
 
 def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
-                    face_detector: str = "auto") -> list:
+                    face_detector: str = "auto", min_score: float | None = FACE_PROBABILITY) -> list:
     """The face in each of ``boxes``: :func:`detect` with ``box=`` for each.
 
     Parameters
@@ -281,12 +281,15 @@ def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
     boxes : (B, 4) px ``(left, top, right, bottom)``, e.g. :func:`face_box` of a video's
         previous frame's detections
     landmark_detector, face_detector : see :func:`detect`
+    min_score : a reading whose face score (:attr:`Detection.score`, where the detector gives
+        one) is below this is no face (default :data:`~.result.FACE_PROBABILITY`); None keeps
+        every reading, for the caller to judge
 
     Returns
     -------
     list of B :class:`~.result.Detection` or None: None where the box holds no face (the
-    detector finds none there, or scores its crop below
-    :data:`~.result.FACE_PROBABILITY`, or the box lies outside the image).
+    detector finds none there, or scores its crop below ``min_score``, or the box lies outside
+    the image).
     """
     img, name = as_image(image)
     out = []
@@ -298,7 +301,7 @@ def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
             # a carried box that has left the picture or shrunk below what a detector reads
             # holds no face to read, which is what the caller asks
             found = None
-        if found is not None and found.score is not None and found.score < FACE_PROBABILITY:
+        if found is not None and found.score is not None and min_score is not None and found.score < min_score:
             found = None
         out.append(found)
     return out

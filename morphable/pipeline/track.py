@@ -170,7 +170,11 @@ def write_footage(footage, folder, *, video, settings: dict | None = None, secon
     if model is None:
         raise InputError(f"{video}: no face was fitted in any frame")
     tracks = [{"id": t.id, "person": ids[t.person], "shot": t.shot, "first_frame": t.first_frame,
-               "last_frame": t.last_frame, "frames_fitted": t.status.count("fitted")} for t in footage.tracks]
+               "last_frame": t.last_frame, "frames_fitted": t.status.count("fitted"),
+               "ended": "cut or end of video" if t.lost is None else
+               f"no face in its box at frame {t.lost[0]}" + ("" if t.lost[1] is None else
+                                                             f" (face score {t.lost[1]:.2f})")}
+              for t in footage.tracks]
     people = [{"id": ids[k], "identity": [float(x) for x in p.identity],
                "tracks": [t.id for t in footage.person_tracks(k)], "frames_tracked": int(p.tracked.sum()),
                "landmark_rmse_px": _mean(p.landmark_rmse_px)} for k, p in enumerate(footage.people)]

@@ -100,6 +100,10 @@ class TrackInfo:
     score : (n,) float64, the landmark detector's face probability (NaN where it gives none)
     box : (n, 4) float64 px, the face box per frame
     descriptors : (M, 128) float32, its face descriptors (M <= :data:`MAX_DESCRIPTORS`)
+    lost : (frame, face score or None) or None: where the track ended because its box held no
+        face (the landmark detector's face score there, below
+        :data:`~morphable.detection.result.FACE_PROBABILITY`, or None where it read nothing);
+        None where it ended at a cut or the video's end
     """
 
     id: int
@@ -110,6 +114,7 @@ class TrackInfo:
     score: np.ndarray
     box: np.ndarray
     descriptors: np.ndarray
+    lost: tuple | None = None
 
     @property
     def first_frame(self) -> int:
@@ -164,7 +169,10 @@ class FootageResult:
 
     def frame_status(self) -> list:
         """Per video frame ``{"frame", "shot", "detector", "faces": [{"person", "track",
-        "status", "score"}]}``: what ``track.json`` lists."""
+        "status", "score"}]}``: what ``track.json`` lists. A track's face is ``"fitted"`` or
+        ``"no fit"`` (:data:`STATUSES`) in its frames, and ``"lost"`` in the frame after its
+        last where its box held no face (its score there: a back of a head, a face turned
+        beyond what the detector reads, no face)."""
         shot_of = np.zeros(self.n_frames, np.int64)
         for k, (a, b) in enumerate(self.shots):
             shot_of[a:b] = k
@@ -173,6 +181,10 @@ class FootageResult:
             for f, s, p in zip(t.frames, t.status, t.score):
                 faces[int(f)].append({"person": t.person, "track": t.id, "status": s,
                                       "score": None if not np.isfinite(p) else round(float(p), 3)})
+            if t.lost is not None:
+                f, p = t.lost
+                faces[int(f)].append({"person": t.person, "track": t.id, "status": "lost",
+                                      "score": None if p is None else round(float(p), 3)})
         return [{"frame": i, "shot": int(shot_of[i]), "detector": bool(self.detected[i]), "faces": faces[i]}
                 for i in range(self.n_frames)]
 
@@ -191,6 +203,7 @@ class _Running:
         self.frames, self.scores, self.boxes, self.descriptors = [], [], [], []
         self.last_descriptor = -10 ** 9
         self.recent, self.n_chunks, self.loaded = [], 0, (None, None)
+        self.end = None         # (frame, face score or None) where its box held no face
 
     def add(self, frame: int, det) -> None:
         from ..detection import face_box
@@ -336,6 +349,7 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     from ..descriptors import face_descriptors
     from ..descriptors import SAME_PERSON_DISTANCE
     from ..detection import describe, detect_all, detect_in_boxes, face_box, resolve_detectors
+    from ..detection.result import FACE_PROBABILITY
     from ..detection.boxes import iou
     from ..shots import find_shots
     from ..video import iter_frames, probe
@@ -384,11 +398,12 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
                 shot = starts.get(i, max(shot, 0))
                 ended += running
                 running = []
-            # each running track's face in its carried box
-            found = detect_in_boxes(image, [t.box for t in running], **detectors) if running else []
+            # each running track's face in its carried box (the face score judged here, to report it)
+            found = detect_in_boxes(image, [t.box for t in running], min_score=None, **detectors) if running else []
             kept, lost = [], []
             for t, det in zip(running, found):
-                if det is None:
+                if det is None or (det.score is not None and det.score < FACE_PROBABILITY):
+                    t.end = (i, None if det is None else det.score)
                     lost.append(t)
                     continue
                 t.add(i, det)
@@ -414,6 +429,7 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
                 for k, det in enumerate(faces):
                     if k in pairs:              # the face its track lost in the carried box, found
                         t = lost[pairs[k]]
+                        t.end = None
                     else:
                         t = _Running(next_id, shot, spill)
                         next_id += 1
@@ -446,7 +462,8 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
                 tracks.append(TrackInfo(id=t.id, person=p, shot=t.shot, frames=np.array(t.frames, np.int64),
                                         status=status[t.id], score=np.array(t.scores),
                                         box=np.array(t.boxes, dtype=np.float64).reshape(-1, 4),
-                                        descriptors=np.array(t.descriptors, np.float32).reshape(-1, 128)))
+                                        descriptors=np.array(t.descriptors, np.float32).reshape(-1, 128),
+                                        lost=t.end))
         tracks.sort(key=lambda t: t.id)
         return FootageResult(shots=shots, tracks=tracks, people=people, detected=np.array(detected, dtype=bool),
                              fps=float(fps), image_size=(info.width, info.height), descriptor_threshold=threshold)
