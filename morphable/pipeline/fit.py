@@ -142,7 +142,7 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     -------
     ImageFit: the fit, its report and the fitted pictures. The face fitted is each picture's
     largest (what :func:`morphable.detection.detect` finds), all as one person; a single photo's
-    report then says how many faces it shows (``faces_seen``). With ``all_faces``: a list of
+    report then says how many faces its quickest face detector sees (``faces_seen``). With ``all_faces``: a list of
     ImageFit, one per face from left to right, each report's ``face`` its number, the faces
     found and its box (px); with ``face``: that face's ImageFit, its report's ``face`` alike.
 
@@ -223,9 +223,21 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
                                          for p in result.pictures if p.frame is not None]
         result.report["frames_skipped"] = skipped
     elif len(items) == 1 and sources[0] is None:
-        # a photo of several people: the largest fitted, and the report says how many there are
-        result.report["faces_seen"] = max(1, len(_all_faces(items[0], landmark_detector, face_detector)))
+        result.report["faces_seen"] = _faces_seen(items[0], landmark_detector, face_detector)
     return result
+
+
+def _faces_seen(picture: Picture, landmark_detector: str, face_detector: str) -> int:
+    """How many faces a photo whose largest face was fitted shows: the boxes of the landmark
+    detector's quickest face detector (:data:`morphable.detection.QUICKEST_FACE_DETECTORS`;
+    3 ms, where reading every face costs 0.15 s and 30 MB more), the fitted face among them;
+    the chosen face detector where one is chosen."""
+    from ..detection import QUICKEST_FACE_DETECTORS, detect_faces, resolve_detectors
+
+    if face_detector == "auto":
+        face_detector = QUICKEST_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
+    boxes = detect_faces(picture.pixels(), landmark_detector=landmark_detector, face_detector=face_detector)
+    return max(1, len(boxes))
 
 
 def _fit_found(kept, points, found, *, model, refine, refine_options, camera, focal_px, n_iterations,

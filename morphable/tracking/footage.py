@@ -8,8 +8,8 @@
    the face detector (:func:`morphable.detection.detect_all`, the faces not tracked already)
    at a shot's start and every :data:`REDETECT_S` seconds, and a quicker one
    (:data:`QUICK_FACE_DETECTORS`) every :data:`QUICK_S` seconds and wherever a track has lost
-   its face, the quickest (:data:`EMPTY_FACE_DETECTORS`) on the other frames where no face is
-   tracked. A face found is associated with the tracks that lost
+   its face, the quickest (:data:`morphable.detection.QUICKEST_FACE_DETECTORS`) on the other
+   frames where no face is tracked. A face found is associated with the tracks that lost
    theirs on that frame by box overlap (:func:`associate`: the landmark detector lost the face
    in its carried box, the face detector found it there); one left over starts a track. A
    track ends at a cut, or where its box holds no face (the face detector finds none there
@@ -45,7 +45,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "QUICK_S", "QUICK_FACE_DETECTORS", "EMPTY_FACE_DETECTORS", "TRACKING_DETECTORS", "CHUNK_ROWS",
+           "QUICK_S", "QUICK_FACE_DETECTORS", "TRACKING_DETECTORS", "CHUNK_ROWS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
 REDETECT_S = 2.0
@@ -54,12 +54,9 @@ QUICK_S = 0.25
 """Between those, a quicker face detector (:data:`QUICK_FACE_DETECTORS`) runs this often and
 on every frame where a track has lost its face, so that a face entering the picture is found
 within a few frames; on frames where no face is tracked, the quickest
-(:data:`EMPTY_FACE_DETECTORS`) runs in between. All read only the faces not tracked already."""
-EMPTY_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
-                        "dlib": "hog"}
-"""With ``face_detector="auto"``, the face detector of frames where no face is tracked, between
-the quick searches: mediapipe's short-range detector (2 ms on a 640 x 480 frame without a face;
-it finds a face of 100 px or more there at once, the quick searches the smaller ones)."""
+(:data:`morphable.detection.QUICKEST_FACE_DETECTORS`, with ``face_detector="auto"``) runs in
+between: it finds a face of 100 px or more in a 640 x 480 frame at once, the quick searches
+the smaller ones. All read only the faces not tracked already."""
 TRACKING_DETECTORS = {"fused": "network"}
 """``landmark_detector="auto"`` resolved (:func:`morphable.detection.resolve_detectors`) -> what
 the tracker reads faces with: the landmark network alone where "auto" would fuse it with the
@@ -348,7 +345,8 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     """
     from ..descriptors import face_descriptors
     from ..descriptors import SAME_PERSON_DISTANCE
-    from ..detection import describe, detect_all, detect_in_boxes, face_box, resolve_detectors
+    from ..detection import (QUICKEST_FACE_DETECTORS, describe, detect_all, detect_in_boxes, face_box,
+                             resolve_detectors)
     from ..detection.result import FACE_PROBABILITY
     from ..detection.boxes import iou
     from ..shots import find_shots
@@ -378,7 +376,7 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     if face_detector == "auto":
         resolved = resolve_detectors(landmark_detector)[0]
         quick["face_detector"] = QUICK_FACE_DETECTORS.get(resolved, "auto")
-        empty["face_detector"] = EMPTY_FACE_DETECTORS.get(resolved, "auto")
+        empty["face_detector"] = QUICKEST_FACE_DETECTORS.get(resolved, "auto")
     # the detections wait on disk, a track's last CHUNK_ROWS in memory (_Running)
     spill_dir = tempfile.TemporaryDirectory(prefix="morphable-track-")
     spill = Path(spill_dir.name)
