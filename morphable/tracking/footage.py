@@ -343,12 +343,11 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     InputError for a bad file or setting, or a video in which no frame shows a face (nothing
     to write).
     """
-    from ..descriptors import face_descriptors
-    from ..descriptors import SAME_PERSON_DISTANCE
+    from ..descriptors import SAME_PERSON_DISTANCE, face_descriptors
     from ..detection import (QUICKEST_FACE_DETECTORS, describe, detect_all, detect_in_boxes, face_box,
                              resolve_detectors)
-    from ..detection.result import FACE_PROBABILITY
     from ..detection.boxes import iou
+    from ..detection.result import FACE_PROBABILITY
     from ..shots import find_shots
     from ..video import iter_frames, probe
     from .single import DEFAULT_SMOOTHING_HZ
@@ -504,7 +503,7 @@ def _fit_person(model, tracks, n_frames: int, times, fps: float, size, identity_
             dets = [t.detection(k) for k in range(a, min(a + 64, len(t.frames)))]
             for k, (det, fit) in enumerate(zip(dets, fit_frames(fixed, dets, size))):
                 f = t.frames[a + k]
-                status[t.id].append("fitted" if fit is not None else "no fit")
+                status[t.id].append(STATUSES[0] if fit is not None else STATUSES[1])
                 if fit is None:
                     continue
                 cam, e, r = fit
