@@ -16,7 +16,7 @@ Three measurements (docs/video.md, "Footage: several people and shot cuts"):
 - ``--speed``: the tracking loop's frames/s for one face and for three faces, 640 x 480
   (``--speed-detectors network fused --rounds 3``: the landmark detectors interleaved);
 - ``--group N``: the first N 300-W AFW photos (**research use only**) with two faces or more
-  annotated: faces found by :func:`morphable.detection.detect_all` and fitted
+  annotated: faces found by :func:`morphable.detection.detect_all` (its tiles too) and fitted
   (``morphable.fit_images(..., all_faces=True)``) against the faces annotated;
 - ``--calibrate``: the descriptor distance of :data:`morphable.descriptors.SAME_PERSON_DISTANCE`
   from London pairs (each person's neutral against their smiling photo; other people's) and
@@ -298,7 +298,7 @@ def group_photos(data, n: int = 20) -> dict:
     for stem, files in photos:
         image = folder / f"{files[0].stem}.jpg"
         truth = [read_pts(p) for p in files]
-        faces = detect_all(image)
+        faces = detect_all(image, tiles=True)
         try:
             fits = morphable.fit_images(image, all_faces=True)
         except FitError:

@@ -55,7 +55,7 @@ from .result import FACE_PROBABILITY, Detection, landmark_noise
 
 __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
            "detect_ibug68", "detect_faces", "detect_all", "detect_in_boxes", "face_box", "SAME_FACE_IOU",
-           "QUICKEST_FACE_DETECTORS", "describe", "landmark_count", "Detection", "landmark_noise",
+           "QUICK_FACE_DETECTORS", "QUICKEST_FACE_DETECTORS", "TILES", "describe", "landmark_count", "Detection", "landmark_noise",
            "read_image", "image_size", "as_image"]
 
 LANDMARK_DETECTORS = ("auto", "fused", "facemesh", "dlib", "network")
@@ -67,6 +67,12 @@ FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("a
 """The face detectors each landmark detector takes ("auto": its default; "fused": the
 network's, which finds the face). A plugin other than the network lists its own (its class's
 ``FACE_DETECTORS``)."""
+QUICK_FACE_DETECTORS = {"facemesh": "full-range", "network": "full-range", "fused": "full-range",
+                        "dlib": "hog"}
+"""Per landmark detector, a quick face detector that finds small faces: mediapipe's full-range
+detector (5 ms on a 640 x 480 frame with faces; 70 ms without, in its own tiles, where "auto"
+ends in the network's window search, about 1.2 s) and dlib's HOG. :func:`detect_all`'s tiles
+and a video's searches between full ones (:mod:`morphable.tracking.footage`) use it."""
 QUICKEST_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
                            "dlib": "hog"}
 """Per landmark detector, its quickest face detector: mediapipe's short-range detector (2-3 ms
@@ -313,7 +319,30 @@ def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
     return out
 
 
-def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto", skip=None) -> list:
+TILES = ((2, 2 / 3), (3, 1 / 2))
+""":func:`detect_all`'s tiles: ``(n, side)``, n x n overlapping squares of ``side`` x the
+photo's longer side, spread edge to edge. On the first 20 AFW photos with two faces or more
+(61 faces annotated, 26-70 px wide ones among them; research use only) the face detectors'
+whole-photo pass finds 52 of them, with the tiles all 61 (0.5 s a photo on the 2 shared cores;
+``python -m evaluation.bench_footage --group 20``), and 13 faces AFW does not annotate."""
+
+
+def _tile_boxes(img: np.ndarray, landmark_detector: str, face_detector: str) -> list:
+    """The face boxes of :data:`TILES` (each tile's own face detection), in photo px."""
+    H, W = img.shape[:2]
+    out = []
+    for n, frac in TILES:
+        side = int(round(frac * max(W, H)))
+        for y in np.linspace(0, max(0, H - side), n).astype(int):
+            for x in np.linspace(0, max(0, W - side), n).astype(int):
+                tile = np.ascontiguousarray(img[y:y + side, x:x + side])
+                for b in detect_faces(tile, landmark_detector=landmark_detector, face_detector=face_detector):
+                    out.append(b + [x, y, x, y])
+    return out
+
+
+def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto", skip=None,
+               tiles: bool = False) -> list:
     """Every face of a photo, ordered left to right.
 
     The face detector's boxes (:func:`detect_faces`), each read by the landmark detector
@@ -326,6 +355,9 @@ def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "
     landmark_detector, face_detector : see :func:`detect`
     skip : (S, 4) px boxes, optional: faces known already (a video's tracked faces); a face
         box overlapping one of them by :data:`SAME_FACE_IOU` is neither read nor returned
+    tiles : bool, also search overlapping tiles (:data:`TILES`) with the landmark detector's
+        :data:`QUICK_FACE_DETECTORS` face detector (``face_detector="auto"``; else the one
+        chosen): the small faces of a group photo, which a pass over the whole photo misses
 
     Returns
     -------
@@ -346,8 +378,15 @@ def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "
     def seen(box, among) -> bool:
         return bool(among) and float(iou(np.array(among), box).max()) >= SAME_FACE_IOU
 
-    boxes = [b for b in detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector)
-             if not seen(b, known)]
+    boxes = list(detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector))
+    if tiles:
+        quick = face_detector
+        if face_detector == "auto":
+            quick = QUICK_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
+        for b in _tile_boxes(img, landmark_detector, quick):
+            if not seen(b, boxes):        # a face of the whole photo's pass found again
+                boxes.append(b)
+    boxes = [b for b in boxes if not seen(b, known)]
     kept, kept_boxes = [], []
     for found in detect_in_boxes(img, boxes, landmark_detector=landmark_detector,
                                  face_detector=face_detector):

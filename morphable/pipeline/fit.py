@@ -266,13 +266,14 @@ def _fit_found(kept, points, found, *, model, refine, refine_options, camera, fo
 
 
 def _all_faces(picture: Picture, landmark_detector: str, face_detector: str) -> list:
-    """Every face of one picture, left to right (:func:`morphable.detection.detect_all`),
-    after :func:`~.inputs.detect_points`' size check."""
+    """Every face of one picture, left to right (:func:`morphable.detection.detect_all`, its
+    tiles searched too), after :func:`~.inputs.detect_points`' size check."""
     from ..detection import detect_all
     from .inputs import check_detect_size
 
     check_detect_size(picture)
-    return detect_all(picture.image, landmark_detector=landmark_detector, face_detector=face_detector)
+    return detect_all(picture.image, landmark_detector=landmark_detector, face_detector=face_detector,
+                      tiles=True)
 
 
 def _fit_faces(images, given, face, all_faces, landmark_detector, face_detector, video_frames, settings):

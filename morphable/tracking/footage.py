@@ -7,7 +7,8 @@
    in the box its previous frame's points give (:func:`morphable.detection.detect_in_boxes`);
    the face detector (:func:`morphable.detection.detect_all`, the faces not tracked already)
    at a shot's start and every :data:`REDETECT_S` seconds, and a quicker one
-   (:data:`QUICK_FACE_DETECTORS`) every :data:`QUICK_S` seconds and wherever a track has lost
+   (:data:`morphable.detection.QUICK_FACE_DETECTORS`) every :data:`QUICK_S` seconds and
+   wherever a track has lost
    its face, the quickest (:data:`morphable.detection.QUICKEST_FACE_DETECTORS`) on the other
    frames where no face is tracked. A face found is associated with the tracks that lost
    theirs on that frame by box overlap (:func:`associate`: the landmark detector lost the face
@@ -45,13 +46,14 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FootageResult", "TrackInfo", "track_footage", "associate", "join_tracks", "REDETECT_S",
-           "QUICK_S", "QUICK_FACE_DETECTORS", "TRACKING_DETECTORS", "CHUNK_ROWS",
+           "QUICK_S", "TRACKING_DETECTORS", "CHUNK_ROWS",
            "DESCRIPTOR_EVERY_S", "MAX_DESCRIPTORS", "IDENTITY_FRAMES", "MATCH_IOU", "STATUSES"]
 
 REDETECT_S = 2.0
 """The face detector as chosen runs at a shot's start and then this often (seconds of video)."""
 QUICK_S = 0.25
-"""Between those, a quicker face detector (:data:`QUICK_FACE_DETECTORS`) runs this often and
+"""Between those, a quicker face detector (:data:`morphable.detection.QUICK_FACE_DETECTORS`)
+runs this often and
 on every frame where a track has lost its face, so that a face entering the picture is found
 within a few frames; on frames where no face is tracked, the quickest
 (:data:`morphable.detection.QUICKEST_FACE_DETECTORS`, with ``face_detector="auto"``) runs in
@@ -63,12 +65,6 @@ the tracker reads faces with: the landmark network alone where "auto" would fuse
 face mesh. On the benchmark's clips (``python -m evaluation.bench_footage --clips 3``,
 docs/video.md) the fused reading costs 2.4 x the network's per face (24 against 8 ms) for an
 eye-centre error no lower (3.18 against 3.21 % of the interocular distance)."""
-QUICK_FACE_DETECTORS = {"facemesh": "full-range", "network": "full-range", "fused": "full-range",
-                        "dlib": "hog"}
-"""With ``face_detector="auto"``, the quicker face detector per landmark detector: mediapipe's
-full-range detector (5 ms on a 640 x 480 frame with faces, 70 ms without, in its tiles, where
-"auto" ends in the network's window search, about 1.2 s; the short-range detector, 2 ms,
-misses faces under about 100 px there)."""
 DESCRIPTOR_EVERY_S = 1.0
 """A track's face descriptor is computed on its first frame and then this often (seconds)."""
 MAX_DESCRIPTORS = 5
@@ -344,8 +340,8 @@ def track_footage(path, *, model="sfm", landmark_detector: str = "auto", face_de
     to write).
     """
     from ..descriptors import SAME_PERSON_DISTANCE, face_descriptors
-    from ..detection import (QUICKEST_FACE_DETECTORS, describe, detect_all, detect_in_boxes, face_box,
-                             resolve_detectors)
+    from ..detection import (QUICK_FACE_DETECTORS, QUICKEST_FACE_DETECTORS, describe, detect_all,
+                             detect_in_boxes, face_box, resolve_detectors)
     from ..detection.boxes import iou
     from ..detection.result import FACE_PROBABILITY
     from ..shots import find_shots
