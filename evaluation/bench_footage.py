@@ -18,6 +18,8 @@ Three measurements (docs/video.md, "Footage: several people and shot cuts"):
 - ``--group N``: the first N 300-W AFW photos (**research use only**) with two faces or more
   annotated: faces found by :func:`morphable.detection.detect_all` (its tiles too) and fitted
   (``morphable.fit_images(..., all_faces=True)``) against the faces annotated;
+- ``--moving-head N``: ``bench_video``'s moving-head clip (N frames) through the one-face
+  tracker and this one, error and jitter against its truth;
 - ``--calibrate``: the descriptor distance of :data:`morphable.descriptors.SAME_PERSON_DISTANCE`
   from London pairs (each person's neutral against their smiling photo; other people's) and
   pairs of AFLW crops (distinct photos, taken for distinct people): the middle between the
@@ -383,6 +385,41 @@ def speed(data, folder, n_frames: int = 150, detectors=("auto",), rounds: int = 
     return out
 
 
+def moving_head(folder, n_frames: int = 300, rounds: int = 2) -> dict:
+    """``bench_video``'s moving-head video (:func:`evaluation.bench_video.make_video`: a real
+    photo seen through a window moving along a known path, 640 x 480, its 68 annotated points
+    as truth) through the one-face tracker (:func:`~morphable.tracking.track_video`) and the
+    footage tracker (:func:`~morphable.tracking.track_footage`), interleaved ``rounds`` times:
+    error (px) and jitter (px/frame²) of the fitted iBUG-68 points as ``bench_video`` reports
+    them, frames lost, median frames/s."""
+    import os
+
+    from evaluation.bench_video import error, jitter, load_detector, make_video
+    from morphable.io.registry import load_model
+    from morphable.tracking import track_footage, track_video
+
+    clip = Path(folder) / "moving_head.mp4"
+    truth = make_video(clip, n_frames)
+    model = load_model("sfm")
+    load_detector(clip)
+    track_footage(clip, model=model)                       # networks loaded once, untimed
+    runs = {}
+    for _ in range(int(rounds)):
+        for name, run in (("track_video", track_video), ("track_footage", track_footage)):
+            t = time.perf_counter()
+            out = run(clip, model=model)
+            seconds = time.perf_counter() - t
+            tr = out if name == "track_video" else out.people[int(np.argmax([p.tracked.sum() for p in out.people]))]
+            runs.setdefault(name, []).append({
+                "error_px": error(tr.landmarks_68_px, truth), "jitter_px": jitter(tr.landmarks_68_px),
+                "frames_lost": int((~tr.tracked).sum()), "fps": n_frames / seconds,
+                "people": 1 if name == "track_video" else len(out.people)})
+    out = {name: {**v[-1], "fps": float(np.median([r["fps"] for r in v]))} for name, v in runs.items()}
+    out["truth_jitter_px"] = jitter(truth)
+    out["load_average"] = list(os.getloadavg())
+    return out
+
+
 @one_line_errors("python -m evaluation.bench_footage")
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m evaluation.bench_footage", description=__doc__.split("\n\n")[0])
@@ -394,6 +431,8 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=1, help="--speed: rounds, medians reported")
     p.add_argument("--group", type=int, default=0, metavar="N", help="AFW group photos")
     p.add_argument("--calibrate", action="store_true", help="the descriptor threshold")
+    p.add_argument("--moving-head", type=int, default=0, metavar="FRAMES",
+                   help="bench_video's moving-head video through both trackers")
     p.add_argument("--landmark-detector", default="auto",
                    help="the tracker's landmark detector (morphable.detection; default auto)")
     p.add_argument("--work", default="runs/bench_footage", help="folder for the clips")
@@ -426,6 +465,9 @@ def main(argv=None) -> int:
         results["speed"] = speed(args.data, work, detectors=args.speed_detectors or [args.landmark_detector],
                                  rounds=args.rounds)
         print(json.dumps(results["speed"], indent=1))
+    if args.moving_head:
+        results["moving_head"] = moving_head(work, args.moving_head, args.rounds)
+        print(json.dumps(results["moving_head"], indent=1))
     if args.group:
         results["group"] = group_photos(args.data, args.group)
         print(json.dumps(results["group"]))
