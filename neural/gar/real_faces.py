@@ -353,18 +353,23 @@ class RealFaces:
 
     def batch(self, index, flipped=None) -> dict:
         """The crops ``index`` (B,) as torch tensors on ``device`` (``image`` in [-1, 1]),
-        mirrored where ``flipped`` (B,) bool is True."""
+        mirrored where ``flipped`` (B,) bool is True; ``identity_id`` (B,) stays a CPU
+        tensor (the trainer picks other people's photos by it on the host)."""
         import torch
 
         t = self.tensors
-        index = torch.as_tensor(np.asarray(index), device=self.device)
+        host = np.asarray(index)
+        index = torch.as_tensor(host, device=self.device)
         img, n, m, lm, pose = (t[k][index] for k in ("image", "normals", "mask", "landmarks",
                                                      "pose"))
         if flipped is not None:
             f = np.asarray(flipped, bool)
             if f.any():
+                # every crop mirrored, then chosen per crop: a boolean index would make the
+                # host wait for the device (it needs the count)
                 ft = torch.as_tensor(f, device=self.device)
-                img[ft], n[ft], m[ft], lm[ft] = flip_faces(img[ft], n[ft], m[ft], lm[ft])
+                img, n, m, lm = (torch.where(ft.reshape(-1, *[1] * (a.dim() - 1)), b, a)
+                                 for a, b in zip((img, n, m, lm), flip_faces(img, n, m, lm)))
             # a mirror image turns yaw and roll the other way
             sign = torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1), dtype=pose.dtype,
                                    device=self.device)
@@ -374,7 +379,7 @@ class RealFaces:
                 "mask": m[:, None].float(),
                 "landmarks": lm.float(),
                 "pose": pose.float(),
-                "identity_id": t["person"][index]}
+                "identity_id": torch.as_tensor(self.arrays["person"][host])}
 
     def sample(self, batch_size: int, rng=None, pair: bool = False) -> dict:
         """``batch_size`` random crops (with replacement) as the dict of
