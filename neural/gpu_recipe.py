@@ -46,7 +46,10 @@ from morphable.errors import InputError, one_line_errors
 from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
+from .training import parse_set
+
+__all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "CONTINUE",
+           "POLL_SECONDS", "GRACE_MINUTES"]
 
 POLL_SECONDS = 15
 GRACE_MINUTES = 2.0
@@ -61,9 +64,13 @@ def _job(name, module, args, minutes, outputs, run_dir):
 
 def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.0,
                device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
-               aux_dir: str = "neural/gar/weights/real") -> list:
-    """The GAR's stages: [[tiny-gpu, tiny128-gpu, tiny-gpu with lambda_n = 0], [the first
-    two's inverters]] (see the module); ``max_steps``, ``batch_size`` and ``overrides``
+               aux_dir: str = "neural/gar/weights/real", init=None,
+               side_by_side: bool = False) -> list:
+    """The GAR's stages (see the module): tiny-gpu, tiny128-gpu and tiny-gpu with
+    lambda_n = 0, then the first two's inverters; one job at a time, or with
+    ``side_by_side`` the GARs together and then the inverters together. ``init``: dict job
+    name -> weights its run starts from (``--init``; default none: from scratch; the
+    committed ones: :data:`CONTINUE`). ``max_steps``, ``batch_size`` and ``overrides``
     (``KEY=VALUE`` config fields of every GAR, e.g. smaller widths) shrink it for a test."""
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
@@ -72,12 +79,14 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
     stages = [[], []]
     for name, config, extra, stem in gars:
         gdir = Path(run_dir) / name
+        start = ["--init", init[name]] if init and init.get(name) else []
         stages[0].append(_job(name, "neural.gar.train", [
             "--config", config, "--data", data, "--aux-dir", aux_dir, "--set",
             *overrides, *extra, "--out", gdir, "--device", device, "--amp",
             "bf16" if device != "cpu" else "none", "--channels-last", "--steps", 10**6,
-            "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit], minutes,
-            {"generator.pt": f"{stem}.pt", "summary.json": f"summary_{stem}.json"}, run_dir))
+            "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *start, *limit],
+            minutes, {"generator.pt": f"{stem}.pt", "summary.json": f"summary_{stem}.json"},
+            run_dir))
         if extra:
             continue
         tag = stem[4:]
@@ -88,21 +97,43 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
             inverter_minutes, "--eval-steps", max_steps or 100, "-q"], inverter_minutes,
             {"inverter.pt": f"inverter_{tag}.pt", "metrics.json": f"summary_inv_{tag}.json"},
             run_dir))
-    return stages
+    # one at a time by default: side by side, each small launch-bound job waited through the
+    # others' time slices (the first GPU run, docs/neural.md)
+    return stages if side_by_side else [[job] for stage in stages for job in stage]
 
 
 def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
-                    device: str = "cuda", max_steps=None, batch_size=None, overrides=()) -> list:
-    """The landmark network's one stage: :mod:`neural.landmarks.train` ``--recipe gpu`` on
-    the packs, for ``minutes`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+                    device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
+                    init=None, arch: str = "small", generate: int = 0, kit=None,
+                    generate_minutes: float = 2.0, workers: int = 16) -> list:
+    """The landmark network's stages: with ``generate`` (faces), first
+    :mod:`neural.faces.build_synthetic` makes that many SFM faces at the network's
+    resolution on ``workers`` processes from ``kit`` (:mod:`neural.gpu_travel`'s; procedural
+    albedo and backgrounds), which join ``synthetic``; then :mod:`neural.landmarks.train`
+    ``--recipe gpu --arch arch`` on the packs for ``minutes``, from ``init`` (weights) when
+    given (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+    stages = []
+    synthetic = list(synthetic)
+    if generate:
+        from .landmarks.network import ARCHES, LandmarkConfig
+
+        side = parse_set(overrides).get("resolution", ARCHES[arch].get(
+            "resolution", LandmarkConfig.resolution))
+        pack = Path(run_dir) / "synthetic_generated"
+        stages.append([_job("generate", "neural.faces.build_synthetic", [
+            "--out", pack, "--n", generate, "--resolution", side, "--seed", 101,
+            "--workers", workers, "--data", kit or "gpu_kit/data", "--textures", 0,
+            "--backgrounds", "none", "-q"], generate_minutes, {}, run_dir)])
+        synthetic.append(pack)
     packs = (["--synthetic", *synthetic] if synthetic else [])
     packs += ["--annotated", annotated] if annotated else []
     packs += ["--profiled", profiled] if profiled else []
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
+    limit += ["--init", init] if init else []
     folder = Path(run_dir) / "landmarks"
-    return [[_job("landmarks", "neural.landmarks.train", [
-        "--recipe", "gpu", *packs, "--out", folder, "--device", device,
+    return stages + [[_job("landmarks", "neural.landmarks.train", [
+        "--recipe", "gpu", "--arch", arch, *packs, "--out", folder, "--device", device,
         "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit,
         *(["--set", *overrides] if overrides else [])], minutes,
         {"landmarks.pt": "landmarks_gpu.pt", "summary.json": "summary_landmarks.json",
@@ -110,6 +141,12 @@ def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minute
 
 
 RECIPES = {"gar": gar_recipe, "landmarks": landmark_recipe}
+
+CONTINUE = {"landmarks": "neural/landmarks/weights/landmarks.pt",
+            "gar64": "neural/gar/weights/real/gar_tiny.pt",
+            "gar128": "neural/gar/weights/gpu/gar_128.pt"}
+"""``--continue``: the committed weights each run starts from (the best 64-px GAR, trained
+on the CPU, and the 128-px one of the first GPU run; the landmark network)."""
 
 
 def _copy_outputs(job, out: Path, seen: dict) -> None:
@@ -211,6 +248,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, help="every job's batch size (tests)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="config fields of every GAR (tests: smaller networks)")
+    p.add_argument("--continue", dest="resume_committed", action="store_true",
+                   help="start each network from its committed weights (CONTINUE)")
+    p.add_argument("--init", metavar="WEIGHTS", help="landmarks: start from these weights")
+    p.add_argument("--arch", default="small", help="landmarks: small or wide")
+    p.add_argument("--generate", type=int, default=0, metavar="N",
+                   help="landmarks: first render N synthetic faces there (needs --kit)")
+    p.add_argument("--kit", default="gpu_kit/data", help="landmarks: the data kit of "
+                   "neural.gpu_travel kit (the SFM model)")
+    p.add_argument("--workers", type=int, default=16, help="landmarks: rendering processes")
+    p.add_argument("--side-by-side", action="store_true",
+                   help="gar: the GARs at the same time (the first run's way), not one by one")
     add_verbosity_arguments(p)
     return p
 
@@ -225,15 +273,25 @@ def main(argv=None) -> int:
         if args.data is None or not Path(args.data).is_file():
             raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
         stages = gar_recipe(args.data, args.runs, minutes=args.minutes or 5.0,
-                            inverter_minutes=args.inverter_minutes, **common)
+                            inverter_minutes=args.inverter_minutes,
+                            init=CONTINUE if args.resume_committed else None,
+                            side_by_side=args.side_by_side, **common)
     else:
         packs = [*args.synthetic, args.annotated, args.profiled]
         missing = next((p for p in packs if p is not None and not Path(p).exists()), None)
-        if missing is not None or not any(packs):
+        if missing is not None or not (any(packs) or args.generate):
             raise InputError(f"{missing or '--synthetic'}: landmark pack not found (build the "
                              "packs with `make landmark-data` and neural.faces.build_synthetic)")
+        if args.generate and not Path(args.kit).is_dir():
+            raise InputError(f"{args.kit}: no data kit for --generate (python -m "
+                             "neural.gpu_travel kit)")
+        init = args.init or (CONTINUE["landmarks"] if args.resume_committed else None)
+        if init and not Path(init).is_file():
+            raise InputError(f"{init}: landmark weights not found")
         stages = landmark_recipe(args.runs, args.synthetic, args.annotated, args.profiled,
-                                 minutes=args.minutes or 8.0, **common)
+                                 minutes=args.minutes or 8.0, init=init, arch=args.arch,
+                                 generate=args.generate, kit=args.kit, workers=args.workers,
+                                 **common)
     report = run_recipe(stages, args.out)
     failed = [k for k, v in report["jobs"].items() if v["returncode"] != 0]
     print(json.dumps({k: {"returncode": v["returncode"], "wall_seconds": v["wall_seconds"]}

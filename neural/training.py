@@ -249,7 +249,8 @@ class TrainingRun:
         losses and throughput every ``config.print_every`` steps and at the end.
 
         ``checkpoint_minutes``: also a checkpoint each time this many minutes have passed
-        since the last one (a run cut off from outside still leaves recent weights).
+        since the last one (a run cut off from outside still leaves recent weights);
+        ``summary.json`` is rewritten with each checkpoint.
         Ctrl-C or SIGTERM: a checkpoint, then KeyboardInterrupt.
         At the end, ``summary.json`` in the output folder: the config, step, images seen in
         all (step x batch size), this call's training seconds, images/s and wall seconds,
@@ -319,6 +320,10 @@ class TrainingRun:
                     self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
                 if save:
                     self.save()
+                    # the run so far, beside the weights: a run cut off from outside still
+                    # tells its losses, images seen and images/s
+                    self.write_summary(recent, self.step - first, train_seconds,
+                                       time.monotonic() - start)
                     last_save = time.monotonic()
         except KeyboardInterrupt:
             flush()

@@ -127,6 +127,7 @@ class Trainer(TrainingRun):
         train split's fits, D's real images other photos of it (held on ``device``)
     amp : ``"bf16"`` for bfloat16 autocast of every forward pass, None for float32
     channels_last : networks and images in channels-last memory format
+    sync_every : steps between reads of the loss terms (:class:`neural.training.TrainingRun`)
     """
 
     WEIGHTS_FILE = "generator.pt"
@@ -134,7 +135,7 @@ class Trainer(TrainingRun):
 
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
                  aligned=False, workers: int = 0, device="cpu", data=None, amp=None,
-                 channels_last: bool = False):
+                 channels_last: bool = False, sync_every=None):
         from .data import AlignedImageFolder
         from ..faces.renders import SyntheticFaces
         from .real_faces import RealFaces
@@ -144,7 +145,8 @@ class Trainer(TrainingRun):
                              "pass one")
         if data is not None and workers:
             raise InputError("--data batches are drawn on the device; drop --workers")
-        super().__init__(out, device=device, amp=amp, channels_last=channels_last)
+        super().__init__(out, device=device, amp=amp, channels_last=channels_last,
+                         sync_every=sync_every)
         real = None if data is None else RealFaces(data, "train", device=self.device,
                                                    resolution=config.resolution)
         policy = config.augment

@@ -82,15 +82,16 @@ class LandmarkTrainer(TrainingRun):
     sources : dict kind -> :class:`neural.landmarks.data.LandmarkSource` (training faces)
     validation : dict name -> LandmarkSource (held-out faces; reports and sample pictures)
     packs : dict kind -> list of pack descriptions for the weights' ``meta``
-    device, amp, channels_last : as :class:`neural.training.TrainingRun`
+    device, amp, channels_last, sync_every : as :class:`neural.training.TrainingRun`
     """
 
     WEIGHTS_FILE = "landmarks.pt"
     REPORT_KEYS = ("nll", "score", "err_px", "sigma_px", "lr")
 
     def __init__(self, config: LandmarkConfig, out, sources: dict, validation=None, packs=None,
-                 device="cpu", amp=None, channels_last: bool = False):
-        super().__init__(out, device=device, amp=amp, channels_last=channels_last)
+                 device="cpu", amp=None, channels_last: bool = False, sync_every=None):
+        super().__init__(out, device=device, amp=amp, channels_last=channels_last,
+                         sync_every=sync_every)
         self.config = config
         self.sources = sources
         self.validation = {name: validation_batch(src, config)
