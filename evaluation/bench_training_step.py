@@ -1,7 +1,7 @@
 """Where a training step's time goes, for each recipe of the plugin, on the CPU:
 ``python -m evaluation.bench_training_step [--recipes landmarks,landmarks-wide,gar,inverter]
 [--steps 4] [--batch-size 16[,32...]] [--threads 1] [--sync-every 25] [--device cpu|cuda]
-[--amp none|bf16] [--channels-last] [--report FILE]``.
+[--amp none|bf16] [--channels-last] [--compile] [--report FILE]``.
 
 One trainer per recipe is built on stand-in data of the real shapes (random pixels: the
 time of a step does not depend on them): the landmark network (``--arch small`` at 128 px
@@ -32,7 +32,9 @@ does. The figures run the module against any version of ``neural`` on ``PYTHONPA
 On a GPU (``--device cuda --amp bf16 --channels-last --batch-size 64,256,512``: the
 one-minute throughput probe of docs/gpu_runs.md) the timers see the host's launches only;
 ``images_per_second_wall`` (the timed loop's wall clock, the device synchronised at its
-end) is the figure.
+end) is the figure, and ``gpu_syncs_per_step`` counts every operation that made the host
+wait for the GPU (torch's CUDA sync debug mode: reads, synchronous copies, boolean masks),
+the checkpoint's excepted.
 
 The report (``--report``, JSON): per recipe (``name@batch`` with several batch sizes)
 ``batch_size``, ``steps``, ``ms_per_step``, ``images_per_second``, ``ms`` (dict share -> ms
@@ -48,6 +50,7 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -70,10 +73,12 @@ class Timers:
         self.seconds: dict = {}
 
     def add(self, name: str, dt: float) -> None:
+        """Add ``dt`` seconds to ``name``."""
         self.seconds[name] = self.seconds.get(name, 0.0) + dt
 
     @contextlib.contextmanager
     def section(self, name: str):
+        """The time of the ``with`` block, added to ``name``."""
         t0 = self.clock()
         try:
             yield
@@ -88,6 +93,7 @@ class Timers:
                     lambda m, args, out: self.add(name, self.clock() - starts.pop()))]
 
     def wrap(self, name: str, fn):
+        """``fn`` with the time of each call added to ``name``."""
         def timed(*args, **kwargs):
             with self.section(name):
                 return fn(*args, **kwargs)
@@ -95,7 +101,7 @@ class Timers:
 
 
 class Reads:
-    """Counts the reads of tensor values (:data:`METHODS`) whose caller is a file of the
+    """Counts the reads of tensor values (``METHODS``) whose caller is a file of the
     tree that ``neural`` is imported from, while a ``with`` block runs (``count``)."""
 
     METHODS = ("item", "tolist", "cpu", "__float__", "__int__", "__bool__")
@@ -106,6 +112,7 @@ class Reads:
 
     @contextlib.contextmanager
     def paused(self):
+        """No counting while the ``with`` block runs."""
         self.counting = False
         try:
             yield
@@ -231,18 +238,21 @@ def run_trainer(trainer, steps: int, sync_every=None, hooks=(), patches=(),
     save = trainer.save
 
     def save_unread():     # the checkpoint's copies to the CPU are no step's
-        with reads.paused():
+        with reads.paused(), _sync_debug(trainer.device, "default"):
             return save()
 
     trainer.save = save_unread
     with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
         trainer.fit(progress=False, max_steps=1)
         timers.seconds.clear()
-        with reads:
+        with reads, warnings.catch_warnings(record=True) as caught, \
+                _sync_debug(trainer.device, "warn"):
+            warnings.simplefilter("always")
             t0 = time.perf_counter()
             trainer.fit(progress=False, max_steps=steps)
             _synchronize(trainer.device)
             wall = time.perf_counter() - t0
+    syncs = sum("synchroniz" in str(w.message) for w in caught)
     for owner, attr, fn in originals:
         setattr(owner, attr, fn)
     ms = {k: 1000 * v / steps for k, v in timers.seconds.items()}
@@ -254,7 +264,26 @@ def run_trainer(trainer, steps: int, sync_every=None, hooks=(), patches=(),
             "ms": {k: round(v, 1) for k, v in ms.items()},
             "reads_per_step": round(reads.count / steps, 2),
             "loop_wall_seconds": round(wall, 2),
-            "images_per_second_wall": round(steps * B / wall, 1)}
+            "images_per_second_wall": round(steps * B / wall, 1),
+            "gpu_syncs_per_step": round(syncs / steps, 2) if trainer.device.type == "cuda"
+            else None}
+
+
+@contextlib.contextmanager
+def _sync_debug(device, mode: str):
+    """torch's CUDA sync debug mode ``mode`` ("warn": a warning at each operation that
+    makes the host wait for the GPU) while the block runs; nothing off CUDA."""
+    import torch
+
+    if device.type != "cuda":
+        yield
+        return
+    previous = torch.cuda.get_sync_debug_mode()
+    torch.cuda.set_sync_debug_mode(mode)
+    try:
+        yield
+    finally:
+        torch.cuda.set_sync_debug_mode(previous)
 
 
 def _synchronize(device) -> None:
@@ -307,6 +336,39 @@ def run_inverter(pack, steps: int, batch_size: int, clock=time.thread_time,
             "reads_per_step": round((r2 - r1) / steps, 2)}
 
 
+def per_face_ms(arch: str, runs: int = 50) -> dict:
+    """The landmark network of ``arch`` on one crop at a time, one CPU thread, channels-last
+    (the detector's torch path without the crop): median and best ms of ``runs`` passes of
+    the thread's CPU time, the parameters and the weights file's MB."""
+
+    import torch
+
+    from neural.landmarks.network import ARCHES, LandmarkConfig, LandmarkNet, save_landmark_net
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        cfg = LandmarkConfig(**ARCHES[arch])
+        net = LandmarkNet(cfg).eval().to(memory_format=torch.channels_last)
+        x = torch.zeros(1, 3, cfg.resolution, cfg.resolution).to(memory_format=torch.channels_last)
+        times = []
+        with torch.no_grad():
+            for k in range(runs + 5):
+                t0 = time.thread_time()
+                net(x)
+                if k >= 5:
+                    times.append(1000 * (time.thread_time() - t0))
+    finally:
+        torch.set_num_threads(threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        save_landmark_net(net, Path(tmp) / "w.pt")
+        size = (Path(tmp) / "w.pt").stat().st_size
+    return {"arch": arch, "resolution": cfg.resolution,
+            "parameters": sum(p.numel() for p in net.parameters()),
+            "weights_mb": round(size / 1e6, 1), "median_ms": round(float(np.median(times)), 2),
+            "best_ms": round(min(times), 2)}
+
+
 RECIPES = ("landmarks", "landmarks-wide", "gar", "inverter")
 
 
@@ -322,9 +384,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "then read images_per_second_wall, the section timers see launches only)")
     p.add_argument("--amp", default="none", help="bf16 on a GPU")
     p.add_argument("--channels-last", action="store_true")
+    p.add_argument("--compile", action="store_true", help="torch.compile the trained networks "
+                   "(landmarks, GAR)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (1: the figures are the thread's CPU time)")
     p.add_argument("--sync-every", type=int, help="the loop's reading interval (GPU: 25)")
+    p.add_argument("--per-face", action="store_true", help="instead: the landmark networks' "
+                   "ms per face on one CPU thread (per_face_ms)")
     p.add_argument("--report", help="JSON report")
     return p
 
@@ -333,6 +399,12 @@ def main(argv=None) -> int:
     import torch
 
     args = build_parser().parse_args(argv)
+    if args.per_face:
+        rows = [per_face_ms(a) for a in ("small", "wide")]
+        for r in rows:
+            print(json.dumps(r))
+        print(f"load average {os.getloadavg()[0]:.2f}")
+        return 0
     recipes = [r for r in args.recipes.split(",") if r]
     unknown = [r for r in recipes if r not in RECIPES]
     try:
@@ -346,6 +418,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     clock = time.thread_time if args.threads == 1 and args.device == "cpu" else time.perf_counter
     run = {"device": args.device, "amp": args.amp, "channels_last": args.channels_last}
+    if args.compile:
+        run["compile"] = True
     report = {"clock": clock.__name__, "threads": args.threads, "sync_every": args.sync_every,
               **run, "load_average": os.getloadavg()[0], "recipes": {}}
     with tempfile.TemporaryDirectory() as tmp:

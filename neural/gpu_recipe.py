@@ -46,8 +46,6 @@ from morphable.errors import InputError, one_line_errors
 from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-from .training import parse_set
-
 __all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "CONTINUE",
            "POLL_SECONDS", "GRACE_MINUTES"]
 
@@ -65,10 +63,11 @@ def _job(name, module, args, minutes, outputs, run_dir):
 def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.0,
                device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
                aux_dir: str = "neural/gar/weights/real", init=None,
-               side_by_side: bool = False) -> list:
+               side_by_side: bool = False, compile: bool = False) -> list:
     """The GAR's stages (see the module): tiny-gpu, tiny128-gpu and tiny-gpu with
     lambda_n = 0, then the first two's inverters; one job at a time, or with
-    ``side_by_side`` the GARs together and then the inverters together. ``init``: dict job
+    ``side_by_side`` the GARs together and then the inverters together; ``compile``: the
+    GARs' ``--compile``. ``init``: dict job
     name -> weights its run starts from (``--init``; default none: from scratch; the
     committed ones: :data:`CONTINUE`). ``max_steps``, ``batch_size`` and ``overrides``
     (``KEY=VALUE`` config fields of every GAR, e.g. smaller widths) shrink it for a test."""
@@ -80,6 +79,7 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
     for name, config, extra, stem in gars:
         gdir = Path(run_dir) / name
         start = ["--init", init[name]] if init and init.get(name) else []
+        start += ["--compile"] if compile else []
         stages[0].append(_job(name, "neural.gar.train", [
             "--config", config, "--data", data, "--aux-dir", aux_dir, "--set",
             *overrides, *extra, "--out", gdir, "--device", device, "--amp",
@@ -105,23 +105,21 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
 def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
                     device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
                     init=None, arch: str = "small", generate: int = 0, kit=None,
-                    generate_minutes: float = 2.0, workers: int = 16) -> list:
+                    generate_px: int = 160, generate_minutes: float = 3.0,
+                    workers: int = 16, compile: bool = False) -> list:
     """The landmark network's stages: with ``generate`` (faces), first
-    :mod:`neural.faces.build_synthetic` makes that many SFM faces at the network's
-    resolution on ``workers`` processes from ``kit`` (:mod:`neural.gpu_travel`'s; procedural
-    albedo and backgrounds), which join ``synthetic``; then :mod:`neural.landmarks.train`
+    :mod:`neural.faces.build_synthetic` makes that many SFM faces of ``generate_px`` (the
+    side of the committed synthetic packs; the trainer resamples its crops from them) on
+    ``workers`` processes from ``kit`` (:mod:`neural.gpu_travel`'s; procedural albedo and
+    backgrounds), which join ``synthetic`` (packs of that side); then :mod:`neural.landmarks.train`
     ``--recipe gpu --arch arch`` on the packs for ``minutes``, from ``init`` (weights) when
-    given (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+    given, with ``--compile`` when ``compile`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
     stages = []
     synthetic = list(synthetic)
     if generate:
-        from .landmarks.network import ARCHES, LandmarkConfig
-
-        side = parse_set(overrides).get("resolution", ARCHES[arch].get(
-            "resolution", LandmarkConfig.resolution))
         pack = Path(run_dir) / "synthetic_generated"
         stages.append([_job("generate", "neural.faces.build_synthetic", [
-            "--out", pack, "--n", generate, "--resolution", side, "--seed", 101,
+            "--out", pack, "--n", generate, "--resolution", generate_px, "--seed", 101,
             "--workers", workers, "--data", kit or "gpu_kit/data", "--textures", 0,
             "--backgrounds", "none", "-q"], generate_minutes, {}, run_dir)])
         synthetic.append(pack)
@@ -131,6 +129,7 @@ def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minute
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
     limit += ["--init", init] if init else []
+    limit += ["--compile"] if compile else []
     folder = Path(run_dir) / "landmarks"
     return stages + [[_job("landmarks", "neural.landmarks.train", [
         "--recipe", "gpu", "--arch", arch, *packs, "--out", folder, "--device", device,
@@ -254,9 +253,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--arch", default="small", help="landmarks: small or wide")
     p.add_argument("--generate", type=int, default=0, metavar="N",
                    help="landmarks: first render N synthetic faces there (needs --kit)")
+    p.add_argument("--generate-px", type=int, default=160, help="landmarks: their side")
     p.add_argument("--kit", default="gpu_kit/data", help="landmarks: the data kit of "
                    "neural.gpu_travel kit (the SFM model)")
     p.add_argument("--workers", type=int, default=16, help="landmarks: rendering processes")
+    p.add_argument("--compile", action="store_true", help="torch.compile the trained networks")
     p.add_argument("--side-by-side", action="store_true",
                    help="gar: the GARs at the same time (the first run's way), not one by one")
     add_verbosity_arguments(p)
@@ -268,7 +269,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     configure(verbosity(args))
     common = dict(device=args.device, max_steps=args.max_steps, batch_size=args.batch_size,
-                  overrides=args.set)
+                  overrides=args.set, compile=args.compile)
     if args.recipe == "gar":
         if args.data is None or not Path(args.data).is_file():
             raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
@@ -291,6 +292,7 @@ def main(argv=None) -> int:
         stages = landmark_recipe(args.runs, args.synthetic, args.annotated, args.profiled,
                                  minutes=args.minutes or 8.0, init=init, arch=args.arch,
                                  generate=args.generate, kit=args.kit, workers=args.workers,
+                                 generate_px=args.generate_px,
                                  **common)
     report = run_recipe(stages, args.out)
     failed = [k for k, v in report["jobs"].items() if v["returncode"] != 0]

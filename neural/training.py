@@ -138,6 +138,9 @@ class TrainingRun:
     device : torch device name
     amp : ``"bf16"`` for bfloat16 autocast of the forward passes, None or ``"none"`` for float32
     channels_last : networks and images in channels-last memory format
+    compile : compile the networks given to :meth:`compiled` (``torch.compile`` through
+        ``Module.compile``: the same parameters and state-dict names, so checkpoints and
+        weights files do not change); for launch-bound small networks on a GPU
     sync_every : steps between reads of the loss terms (default 1 on the CPU,
         :data:`SYNC_EVERY_DEVICE` elsewhere); a NaN is reported at most this many steps late,
         and never reaches a checkpoint (the terms are read before each one)
@@ -147,7 +150,7 @@ class TrainingRun:
     REPORT_KEYS: tuple = ()
 
     def __init__(self, out, device="cpu", amp=None, channels_last: bool = False,
-                 sync_every=None):
+                 sync_every=None, compile: bool = False):
         if amp is not None and amp not in AMP_DTYPES:
             raise InputError(f"--amp must be one of {', '.join(AMP_DTYPES)}, got {amp!r}")
         self.device = device_from(device)
@@ -155,6 +158,7 @@ class TrainingRun:
             torch.backends.cudnn.benchmark = True     # fixed shapes: pick the fastest kernels
         self.amp_dtype = getattr(torch, AMP_DTYPES[amp]) if AMP_DTYPES.get(amp) else None
         self.channels_last = bool(channels_last)
+        self.compile = bool(compile)
         self.sync_every = max(1, int(sync_every or (1 if self.device.type == "cpu"
                                                      else SYNC_EVERY_DEVICE)))
         self.out = Path(out)      # created by the subclass once its inputs loaded, or by fit
@@ -167,6 +171,12 @@ class TrainingRun:
         if self.channels_last and (isinstance(x, torch.nn.Module) or x.dim() == 4):
             x = x.to(memory_format=torch.channels_last)
         return x
+
+    def compiled(self, module):
+        """``module``, compiled in place with ``compile`` (see the class)."""
+        if self.compile:
+            module.compile()
+        return module
 
     def autocast(self):
         """The forward passes' autocast context (a no-op in float32)."""

@@ -224,7 +224,7 @@ def test_landmark_gpu_recipe_generates_and_continues_on_cpu(tmp_path, data_dir):
     sizes = ["resolution=32", "widths=[8,8,8,8,8]", "blocks=[0,0,1,0,0]", "hidden=16"]
     out = tmp_path / "back"
     run = subprocess.run([sys.executable, "-m", "neural.gpu_recipe", "landmarks", "--generate", "6",
-                          "--kit", str(kit), "--workers", "1", "--init", str(tmp_path / "init.pt"),
+                          "--generate-px", "48", "--kit", str(kit), "--workers", "1", "--init", str(tmp_path / "init.pt"),
                           "--out", str(out), "--runs", str(tmp_path / "runs"), "--device", "cpu",
                           "--max-steps", "2", "--batch-size", "4", "--set", *sizes],
                          capture_output=True, text=True, timeout=600, cwd=REPO)

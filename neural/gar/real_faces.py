@@ -357,9 +357,12 @@ class RealFaces:
         tensor (the trainer picks other people's photos by it on the host)."""
         import torch
 
+        from ..training import to_device
+
+        # the host's choices reach the device without making the host wait (to_device)
         t = self.tensors
         host = np.asarray(index)
-        index = torch.as_tensor(host, device=self.device)
+        index = to_device(torch.as_tensor(host), self.device)
         img, n, m, lm, pose = (t[k][index] for k in ("image", "normals", "mask", "landmarks",
                                                      "pose"))
         if flipped is not None:
@@ -367,12 +370,12 @@ class RealFaces:
             if f.any():
                 # every crop mirrored, then chosen per crop: a boolean index would make the
                 # host wait for the device (it needs the count)
-                ft = torch.as_tensor(f, device=self.device)
+                ft = to_device(torch.as_tensor(f), self.device)
                 img, n, m, lm = (torch.where(ft.reshape(-1, *[1] * (a.dim() - 1)), b, a)
                                  for a, b in zip((img, n, m, lm), flip_faces(img, n, m, lm)))
             # a mirror image turns yaw and roll the other way
-            sign = torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1), dtype=pose.dtype,
-                                   device=self.device)
+            sign = to_device(torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1),
+                                             dtype=pose.dtype), self.device)
             pose = pose * sign
         return {"image": img.permute(0, 3, 1, 2).float() / 127.5 - 1,
                 "normals": n.permute(0, 3, 1, 2).contiguous(),

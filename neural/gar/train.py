@@ -128,6 +128,7 @@ class Trainer(TrainingRun):
     amp : ``"bf16"`` for bfloat16 autocast of every forward pass, None for float32
     channels_last : networks and images in channels-last memory format
     sync_every : steps between reads of the loss terms (:class:`neural.training.TrainingRun`)
+    compile : compile G and D (:meth:`neural.training.TrainingRun.compiled`)
     """
 
     WEIGHTS_FILE = "generator.pt"
@@ -135,7 +136,7 @@ class Trainer(TrainingRun):
 
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
                  aligned=False, workers: int = 0, device="cpu", data=None, amp=None,
-                 channels_last: bool = False, sync_every=None):
+                 channels_last: bool = False, sync_every=None, compile: bool = False):
         from .data import AlignedImageFolder
         from ..faces.renders import SyntheticFaces
         from .real_faces import RealFaces
@@ -146,7 +147,7 @@ class Trainer(TrainingRun):
         if data is not None and workers:
             raise InputError("--data batches are drawn on the device; drop --workers")
         super().__init__(out, device=device, amp=amp, channels_last=channels_last,
-                         sync_every=sync_every)
+                         sync_every=sync_every, compile=compile)
         real = None if data is None else RealFaces(data, "train", device=self.device,
                                                    resolution=config.resolution)
         policy = config.augment
@@ -161,6 +162,7 @@ class Trainer(TrainingRun):
         self.G = self.layout(Generator(config))
         self.D = self.layout(Discriminator(config))
         self.G_ema = copy.deepcopy(self.G).eval().requires_grad_(False)
+        self.compiled(self.G), self.compiled(self.D)
         self.opt_g = torch.optim.Adam(self.G.parameters(), lr=config.g_lr, betas=config.betas)
         # lazy R1: scale the D optimiser's momentum as StyleGAN2 does
         c = config.r1_every / (config.r1_every + 1)
@@ -383,6 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="warm-up steps after --init")
     p.add_argument("--workers", type=int, default=0, help="data-loading processes")
     p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--compile", action="store_true", help="torch.compile G and D (GPU)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
     p.add_argument("--checkpoint-minutes", type=float, metavar="M",
@@ -418,7 +421,8 @@ def main(argv=None) -> int:
             aux = {n: load_aux(n, pretrained=False, width=cfg.aux_width) for n in NAMES}
         trainer = Trainer(cfg, args.out, aux=aux, aux_dir=args.aux_dir, images=args.images,
                           aligned=args.aligned, workers=args.workers, device=args.device,
-                          data=args.data, amp=args.amp, channels_last=args.channels_last)
+                          data=args.data, amp=args.amp, channels_last=args.channels_last,
+                          compile=args.compile)
         if trainer.checkpoint_path.exists():
             if args.no_resume:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")

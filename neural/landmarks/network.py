@@ -125,9 +125,9 @@ ARCHES = {
 """Named network sizes (:class:`LandmarkConfig` fields; ``--arch`` of
 :mod:`neural.landmarks.train`): ``small`` is the config's default (128 px, 2.62 M
 parameters, the CPU recipe's); ``wide`` is sized for a GPU run: 160 px, more channels and
-residual blocks, 3.67 M parameters, 14.7 MB of weights, 6.5 ms per face on one CPU thread
-where ``small`` takes 2.6 ms (docs/gpu_runs.md has the command). A weights file holds its
-config, so the detector loads either."""
+residual blocks, 3.67 M parameters, 14.7 MB of weights, about 7 ms per face on one CPU
+thread where ``small`` takes about 3 ms (docs/gpu_runs.md: the command and the load). A
+weights file holds its config, so the detector loads either."""
 
 
 def _conv(cin, cout, stride=1):

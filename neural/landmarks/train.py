@@ -82,16 +82,17 @@ class LandmarkTrainer(TrainingRun):
     sources : dict kind -> :class:`neural.landmarks.data.LandmarkSource` (training faces)
     validation : dict name -> LandmarkSource (held-out faces; reports and sample pictures)
     packs : dict kind -> list of pack descriptions for the weights' ``meta``
-    device, amp, channels_last, sync_every : as :class:`neural.training.TrainingRun`
+    device, amp, channels_last, sync_every, compile : as :class:`neural.training.TrainingRun`
     """
 
     WEIGHTS_FILE = "landmarks.pt"
     REPORT_KEYS = ("nll", "score", "err_px", "sigma_px", "lr")
 
     def __init__(self, config: LandmarkConfig, out, sources: dict, validation=None, packs=None,
-                 device="cpu", amp=None, channels_last: bool = False, sync_every=None):
+                 device="cpu", amp=None, channels_last: bool = False, sync_every=None,
+                 compile: bool = False):
         super().__init__(out, device=device, amp=amp, channels_last=channels_last,
-                         sync_every=sync_every)
+                         sync_every=sync_every, compile=compile)
         self.config = config
         self.sources = sources
         self.validation = {name: validation_batch(src, config)
@@ -108,6 +109,7 @@ class LandmarkTrainer(TrainingRun):
         self.net.set_mean_points((first["points"] * w).sum(0) / w.sum(0).clamp_min(1))
         self.opt = torch.optim.AdamW(self.net.parameters(), lr=config.lr,
                                      weight_decay=config.weight_decay)
+        self.compiled(self.net)
 
     # --- checkpoints --------------------------------------------------------------------
     def meta(self) -> dict:
@@ -364,6 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amp", choices=sorted(AMP_DTYPES))
     p.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=None)
     p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--compile", action="store_true", help="torch.compile the network (GPU)")
     p.add_argument("--max-minutes", type=float)
     p.add_argument("--checkpoint-minutes", type=float)
     p.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after N steps of this run")
@@ -400,7 +403,8 @@ def main(argv=None) -> int:
         sources, validation, packs = load_sources(args.synthetic, args.annotated, args.profiled,
                                                   args.hold_out)
         trainer = LandmarkTrainer(cfg, args.out, sources, validation, packs, device=run["device"],
-                                  amp=run["amp"], channels_last=bool(run["channels_last"]))
+                                  amp=run["amp"], channels_last=bool(run["channels_last"]),
+                                  compile=args.compile)
         if trainer.checkpoint_path.exists():
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
         elif args.init:
