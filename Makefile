@@ -81,17 +81,17 @@ landmark-train: $(STAMP)
 landmark-onnx: $(STAMP)
 	$(BIN)/python -m neural.landmarks.export --weights neural/landmarks/weights/landmarks.pt
 
-# the GPU run (docs/gpu_runs.md), on the GPU machine: 12,000 synthetic faces rendered there on
+# the GPU run (docs/gpu_runs.md), on the GPU machine: 8,000 synthetic faces rendered there on
 # its 16 cores, the carried compact real packs, LANDMARK_MINUTES of training continuing
 # LANDMARK_INIT (the committed network; empty: from scratch, e.g. LANDMARK_ARCH=wide)
 LANDMARK_ARCH ?= small
 LANDMARK_INIT ?= neural/landmarks/weights/landmarks.pt
-LANDMARK_MINUTES ?= 6
+LANDMARK_MINUTES ?= 5
 landmark-gpu:
-	$(GPU_PYTHON) -m neural.gpu_recipe landmarks --generate 12000 --kit gpu_kit/data \
+	$(GPU_PYTHON) -m neural.gpu_recipe landmarks --generate 8000 --kit gpu_kit/data \
 		--annotated landmark_data/annotated_trainval_128.npz --profiled landmark_data/profiled_128.npz \
 		--arch $(LANDMARK_ARCH) $(if $(LANDMARK_INIT),--init $(LANDMARK_INIT)) \
-		--minutes $(LANDMARK_MINUTES) --out $(GPU_OUT)
+		$(if $(GPU_BATCH),--batch-size $(GPU_BATCH)) --minutes $(LANDMARK_MINUTES) --out $(GPU_OUT)
 
 landmark-annotated: $(STAMP)
 	$(BIN)/python -m neural.faces.build_annotated --data $(DATA) --out landmark_data/annotated
@@ -116,11 +116,11 @@ docs: $(STAMP)
 # the working tree
 GPU_PYTHON ?= python3
 GPU_OUT ?= runs/gpu
-GAR_MINUTES ?= 2.5
+GAR_MINUTES ?= 1.5
 gar-gpu:
 	$(GPU_PYTHON) -m neural.gpu_recipe gar --data gar_data/real128.npz --out $(GPU_OUT) \
 		--runs runs/gpu-recipe --minutes $(GAR_MINUTES) --inverter-minutes 0.5 --device cuda \
-		--continue
+		--continue $(if $(GPU_BATCH),--batch-size $(GPU_BATCH))
 
 # the one-minute throughput probe (docs/gpu_runs.md): images/s of GPU_PROBE's recipes at batch
 # 64, 256 and 512 on random data of the real shapes, into GPU_OUT/probe.json

@@ -2,11 +2,17 @@
 and leaves their weights, logs and one JSON summary in an output folder.
 
 ``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 5
-[--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``);
-``python -m neural.gpu_recipe landmarks --synthetic PACK [PACK ...] [--annotated PACK]
-[--profiled PACK] --out OUT --minutes 8`` (the landmark network,
+[--inverter-minutes 1] [--device cuda] [--continue] [--side-by-side] [--compile]``
+(``make gar-gpu``);
+``python -m neural.gpu_recipe landmarks [--synthetic PACK ...] [--annotated PACK]
+[--profiled PACK] [--generate N --kit DIR] [--arch small|wide] [--init WEIGHTS | --continue]
+--out OUT --minutes 8`` (``make landmark-gpu``: the landmark network,
 :mod:`neural.landmarks.train` with its ``gpu`` recipe: ``landmarks_gpu.pt``, its
 ``validation.jsonl`` as ``validation_landmarks.jsonl``, ``recipe.json``, ``log.txt``).
+
+``--continue`` starts each network from its committed weights (:data:`CONTINUE`), so that
+one GPU run continues the last (docs/gpu_runs.md); ``--generate N`` first renders N
+synthetic faces on the GPU machine's cores from the kit of :mod:`neural.gpu_travel`.
 
 A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
 command of this package with its own time limit (``--max-minutes``; the runner kills a job
@@ -24,9 +30,9 @@ are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool re
 and the torch version. ``log.txt``: every job's output.
 
 The ``gar`` recipe trains ``tiny-gpu`` (64 px), ``tiny128-gpu`` (128 px) and ``tiny-gpu``
-with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack side by side (a 128-px pack
-serves all: the 64-px runs area-downsample it), then the first two's inverters V, side by
-side too; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
+with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack, one at a time (with
+``--side-by-side`` together, the first run's way; a 128-px pack serves all: the 64-px runs
+area-downsample it), then the first two's inverters V; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
 ``inverter_64.pt``, ``inverter_128.pt``, ``recipe.json`` and ``log.txt`` (sample grids are
 made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs
 N steps of each job instead (the CPU test of the recipe).
@@ -105,7 +111,7 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
 def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
                     device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
                     init=None, arch: str = "small", generate: int = 0, kit=None,
-                    generate_px: int = 160, generate_minutes: float = 3.0,
+                    generate_px: int = 160, generate_minutes: float = 1.0,
                     workers: int = 16, compile: bool = False) -> list:
     """The landmark network's stages: with ``generate`` (faces), first
     :mod:`neural.faces.build_synthetic` makes that many SFM faces of ``generate_px`` (the

@@ -257,3 +257,18 @@ def test_bench_training_step_shares_add_up(tmp_path):
     # the loop's one read (.cpu() and .tolist()) every 4 steps, none in the steps
     assert r["reads_per_step"] == pytest.approx(0.5)
     assert main(["--recipes", "nothing"]) == 2
+
+
+def test_gar_recipe_continues_committed_gars_one_at_a_time():
+    from neural.gpu_recipe import CONTINUE, gar_recipe
+
+    stages = gar_recipe("pack.npz", "runs", init=CONTINUE)
+    assert [[j["name"] for j in s] for s in stages] == [["gar64"], ["gar128"], ["gar64_n0"],
+                                                       ["inv64"], ["inv128"]]
+    args = {s[0]["name"]: s[0]["args"] for s in stages}
+    assert args["gar64"][args["gar64"].index("--init") + 1] == CONTINUE["gar64"]
+    assert args["gar128"][args["gar128"].index("--init") + 1] == CONTINUE["gar128"]
+    assert "--init" not in args["gar64_n0"]       # the ablation starts from scratch
+    together = gar_recipe("pack.npz", "runs", side_by_side=True, compile=True)
+    assert [len(s) for s in together] == [3, 2] and "--compile" in together[0][0]["args"]
+    assert all((REPO / p).is_file() for p in CONTINUE.values())
