@@ -32,10 +32,11 @@ and the torch version. ``log.txt``: every job's output.
 The ``gar`` recipe trains ``tiny-gpu`` (64 px), ``tiny128-gpu`` (128 px) and ``tiny-gpu``
 with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack, one at a time (with
 ``--side-by-side`` together, the first run's way; a 128-px pack serves all: the 64-px runs
-area-downsample it), then the first two's inverters V; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
-``inverter_64.pt``, ``inverter_128.pt``, ``recipe.json`` and ``log.txt`` (sample grids are
-made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs
-N steps of each job instead (the CPU test of the recipe).
+area-downsample it), then the first two's inverters V; it returns ``gar_64.pt``,
+``gar_128.pt``, ``gar_64_no_norm_cycle.pt``, ``inverter_64.pt``, ``inverter_128.pt``,
+``recipe.json`` and ``log.txt`` (sample grids are made from the weights afterwards:
+``evaluation.gar_quality --grid``). ``--max-steps N`` runs N steps of each job instead (the
+CPU test of the recipe).
 """
 from __future__ import annotations
 

@@ -163,6 +163,7 @@ class TrainingRun:
                                                      else SYNC_EVERY_DEVICE)))
         self.out = Path(out)      # created by the subclass once its inputs loaded, or by fit
         self.step = 0
+        self.train_seconds = 0.0  # every fit's, batches and reads included (checkpoints may keep it)
 
     def layout(self, x):
         """A module or tensor on the device, channels-last with ``channels_last`` (4-D
@@ -322,6 +323,7 @@ class TrainingRun:
                     flush()
                 dt = time.perf_counter() - t0
                 train_seconds += dt
+                self.train_seconds += dt
                 window = [window[0] + dt, window[1] + 1]
                 if report:
                     self.report(terms, steps, window[1] * cfg.batch_size, window[0])

@@ -154,7 +154,7 @@ def test_gar_init_and_warm_up(tmp_path, data_dir):
         saved = torch.load(tmp_path / "a" / "generator.pt", weights_only=True)
         for k, v in saved["G"].items():
             assert torch.equal(t.G.state_dict()[k], v) and torch.equal(t.G_ema.state_dict()[k], v)
-        t._warm_up()
+        t.fit(progress=False, max_steps=1)          # step 0 of the warm-up: 1/4 of the rate
         assert t.opt_g.param_groups[0]["lr"] == pytest.approx(cfg.g_lr / 4)
         assert main(args + ["--out", str(tmp_path / "c"), "--init",
                             str(tmp_path / "a" / "generator.pt"), "--init-warmup", "3"]) == 0
@@ -224,7 +224,8 @@ def test_landmark_gpu_recipe_generates_and_continues_on_cpu(tmp_path, data_dir):
     sizes = ["resolution=32", "widths=[8,8,8,8,8]", "blocks=[0,0,1,0,0]", "hidden=16"]
     out = tmp_path / "back"
     run = subprocess.run([sys.executable, "-m", "neural.gpu_recipe", "landmarks", "--generate", "6",
-                          "--generate-px", "48", "--kit", str(kit), "--workers", "1", "--init", str(tmp_path / "init.pt"),
+                          "--generate-px", "48", "--kit", str(kit), "--workers", "1",
+                          "--init", str(tmp_path / "init.pt"),
                           "--out", str(out), "--runs", str(tmp_path / "runs"), "--device", "cpu",
                           "--max-steps", "2", "--batch-size", "4", "--set", *sizes],
                          capture_output=True, text=True, timeout=600, cwd=REPO)

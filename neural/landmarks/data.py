@@ -177,7 +177,7 @@ def _crops(source: LandmarkSource, index, config, gen, negative, jitter: bool):
     q = torch.as_tensor(image_to_crop(np.nan_to_num(source.points[index].numpy()), theta, (W, H)),
                         dtype=torch.float32)
     w = source.weight[index].clone()
-    if flip is not None:      # no test of flip.any(): a read that a GPU would wait for
+    if flip is not None:      # always: a no-op where nothing is mirrored, and no read of flip
         m = torch.as_tensor(mirror_index())
         q = torch.where(flip[:, None, None], q[:, m], q)
         w = torch.where(flip[:, None], w[:, m], w)

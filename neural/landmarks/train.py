@@ -41,7 +41,6 @@ import json
 import logging
 import math
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -98,7 +97,6 @@ class LandmarkTrainer(TrainingRun):
         self.validation = {name: validation_batch(src, config)
                            for name, src in (validation or {}).items() if len(src)}
         self.packs = packs or {}
-        self.train_seconds = 0.0
         self.init = None       # the weights a run started from (--init): path, images seen
         # decoded once where the network trains: the crops are cut there, no image travels
         sources = self.sources = {k: s.to(self.device) for k, s in sources.items()}
@@ -194,7 +192,6 @@ class LandmarkTrainer(TrainingRun):
                              "sigma_px": sig}
 
     def train_step(self, batch) -> dict:
-        t0 = time.perf_counter()
         self.net.train()
         lr = self.lr_at(self.step)
         for group in self.opt.param_groups:
@@ -206,7 +203,6 @@ class LandmarkTrainer(TrainingRun):
         self.opt.step()
         terms["lr"] = lr
         self.step += 1
-        self.train_seconds += time.perf_counter() - t0
         return terms
 
     # --- held-out sets ------------------------------------------------------------------
