@@ -260,15 +260,22 @@ def flip_faces(image, normals, mask, landmarks):
     (N, R, R) masks, (N, 68, 2) px landmarks (x -> R - 1 - x, mirrored labels); numpy
     arrays or torch tensors (new ones, the inputs are not changed)."""
     R = image.shape[2]
+    mirror = MIRROR
     if isinstance(image, np.ndarray):
         def flip(a):
             return a[:, :, ::-1].copy()
     else:
+        import torch
+
+        from ..training import to_device
+
         def flip(a):
             return a.flip(2)
+        # the label order copied to the tensors' device without a wait
+        mirror = to_device(torch.as_tensor(MIRROR), landmarks.device)
     n = flip(normals)
     n[..., 0] *= -1
-    lm = landmarks[:, MIRROR]
+    lm = landmarks[:, mirror]
     lm[..., 0] = R - 1 - lm[..., 0]
     return flip(image), n, flip(mask), lm
 

@@ -333,9 +333,10 @@ class Trainer(TrainingRun):
         # ema_rampup = 0.05) so that short runs do not sit at the initial weights
         half_life = min(10_000, 0.05 * (self.step + 1) * B)
         beta = 0.5 ** (B / half_life)
+        # one multi-tensor kernel per list instead of one per parameter (launch-bound on a GPU)
         with torch.no_grad():
-            for pe, p in zip(self.G_ema.parameters(), self.G.parameters()):
-                pe.lerp_(p, 1 - beta)
+            torch._foreach_lerp_(list(self.G_ema.parameters()), list(self.G.parameters()),
+                                 1 - beta)
             for be, b in zip(self.G_ema.buffers(), self.G.buffers()):
                 be.copy_(b)
         # 0-d tensors, read every sync_every steps by the loop (no per-step wait on a GPU)
