@@ -38,7 +38,8 @@ def add_detector_arguments(parser) -> None:
                              "the face mesh in the network's box, the two fused by their "
                              "uncertainty; either alone where the other finds no face); auto "
                              "(default): fused where mediapipe is installed and the network can run "
-                             "(torch and its weights), else facemesh, else network, else dlib")
+                             "(its weights, with onnxruntime or torch), else facemesh, else "
+                             "network, else dlib")
     faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
     parser.add_argument("--face-detector", choices=tuple(faces), default="auto",
                         help="the landmark detector's face detector: short-range or full-range "
