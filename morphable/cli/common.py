@@ -23,7 +23,7 @@ def add_fitting_arguments(parser) -> None:
     parser.add_argument("--robust", choices=("huber",), default=None,
                         help="huber: Huber loss against outlying landmarks (default: least squares)")
     parser.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
-                        help="landmark noise in px, or auto: estimated from the fit (default 1)")
+                        help="landmark noise in px, or auto: estimated from the fit (default 1 px)")
     add_detector_arguments(parser)
 
 
