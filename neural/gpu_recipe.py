@@ -19,7 +19,7 @@ command of this package with its own time limit (``--max-minutes``; the runner k
 that overruns it by ``GRACE_MINUTES``). Side by side was meant to fill the GPU's idle time
 between the small networks' kernel launches; on the first run (an H200, three GARs) each
 trained at 0.4 s per step of 64, far below the estimate, and one job alone was not measured
-(docs/neural.md, "The GPU recipe and its first run"). While a job runs, its newest weights are
+(docs/history.md, "The GPU recipe and its first run"; docs/gpu_runs.md). While a job runs, its newest weights are
 copied into the output folder every ``POLL_SECONDS``, so a run cut off from outside still
 leaves the last checkpoint's weights (the trainers write one each minute). Output file names
 are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool returns at most
