@@ -344,3 +344,35 @@ def test_no_mesh_where_the_box_holds_no_face(data_dir, tmp_path):
     np.testing.assert_array_equal(result.people[0].tracked, np.arange(10) < 6)
     status = result.frame_status()
     assert [f["status"] for f in status[6]["faces"]] == ["lost"] and status[7]["faces"] == []
+
+
+def test_fit_on_a_video_keeps_one_person(data_dir, tmp_path):
+    """``morphable fit CLIP``: the person of the first frame (the larger face there) is fitted
+    in every sampled frame, also where another person's face is the larger; a frame showing
+    only the other person is skipped."""
+    import morphable
+    from morphable.video import write_video
+
+    A_big, A_small = _face(data_dir, 5, 150), _face(data_dir, 5, 90)
+    B_big, B_small = _face(data_dir, 6, 150), _face(data_dir, 6, 90)
+    frames = []
+    for i in range(9):
+        f = np.full((H, W, 3), 80, np.uint8)
+        if i < 3:
+            _paste(_paste(f, A_big, 20, 45), B_small, 215, 75)                # A the larger
+        elif i < 6:
+            _paste(_paste(f, A_small, 20, 75), B_big, 150, 45)                # B the larger
+        else:
+            _paste(f, B_big, 150, 45)                                         # B alone
+        frames.append(f)
+    write_video(tmp_path / "two.mp4", frames, fps=25)
+    result = morphable.fit_images(tmp_path / "two.mp4", video_frames=9)
+    report = result.report
+    assert [f["frame"] for f in report["video_frames"]] == list(range(6))
+    assert [s["reason"] for s in report["frames_skipped"]] == ["only other people's faces"] * 3
+    x = [np.nanmean(result.fit.landmarks_68_px()[k][:, 0]) for k in range(6)]
+    assert all(v < 140 for v in x), x           # A, on the left, in every fitted frame
+    # the largest face of each frame alone would have been B's in frames 3-5
+    from morphable.detection import detect
+
+    assert np.nanmean(detect(result.pictures[3].pixels()).points[:, 0]) > 150

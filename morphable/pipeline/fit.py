@@ -124,7 +124,10 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     shared_identity : bool, one identity for all pictures (False: each fitted on its own)
     landmark_detector, face_detector : see :func:`morphable.detection.detect`
     landmark_std_px : float > 0 or "auto", px, the noise of points without a σ of their own
-    video_frames : int >= 1, frames sampled from each video (all of a shorter one)
+    video_frames : int >= 1, frames sampled from each video (all of a shorter one); the
+        person fitted is the largest face of the first of them with a face, found again in
+        the others by their face descriptor (:mod:`morphable.descriptors`; a frame showing only
+        other people is skipped)
     face : int >= 0, optional: fit face number ``face`` of a single photo or array, its faces
         numbered from 0 left to right (:func:`morphable.detection.detect_all`); default the
         largest
@@ -198,19 +201,23 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
             raise InputError(f"{item}: landmark files are for photos; a video's frames are detected")
         items += expanded
         sources += [lm] * len(expanded)
-    points, kept, found, skipped = [], [], [], []
+    points, kept, found, skipped, people = [], [], [], [], {}
     for picture, lm in zip(items, sources):
         if lm is None:
             try:
-                found.append(detect_points(picture, landmark_detector, face_detector))
-            except FitError:
+                det = detect_points(picture, landmark_detector, face_detector)
+                if picture.frame is not None:
+                    det = _same_person(picture, det, people, landmark_detector, face_detector)
+            except FitError as e:
                 if picture.frame is None:
                     raise
-                # a video's frame without a face (turned away, occluded) is skipped, not fatal
+                # a video's frame without a face (turned away, occluded), or without the
+                # video's person, is skipped, not fatal
                 skipped.append({"image": picture.label, "time_s": round(picture.frame.time_s, 4),
-                                "reason": "no face found"})
+                                "reason": "no face found" if str(e) != _OTHERS else _OTHERS})
                 continue
-            points.append(found[-1].points)
+            found.append(det)
+            points.append(det.points)
         else:
             points.append(_given_points(lm, picture))
             found.append(None)
@@ -225,6 +232,31 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     elif len(items) == 1 and sources[0] is None:
         result.report["faces_seen"] = _faces_seen(items[0], landmark_detector, face_detector)
     return result
+
+
+_OTHERS = "only other people's faces"
+
+
+def _same_person(picture: Picture, det, people: dict, landmark_detector: str, face_detector: str):
+    """A video frame's face of the video's person: the largest face of the first frame with a
+    face fixes who (their face descriptor, :mod:`morphable.descriptors`, in ``people`` by
+    video); on later frames the largest face if it is them, else the face of the frame that
+    is, else FitError (the frame shows only other people)."""
+    from ..descriptors import SAME_PERSON_DISTANCE, descriptor_distance, face_descriptors
+    from ..detection import detect_all
+    from ..errors import FitError
+
+    image = picture.pixels()
+    d = face_descriptors(image, [det.ibug68])
+    ref = people.setdefault(picture.frame.source, d)
+    if descriptor_distance(d, ref)[0, 0] < SAME_PERSON_DISTANCE:
+        return det
+    faces = detect_all(image, landmark_detector=landmark_detector, face_detector=face_detector)
+    if faces:
+        dist = descriptor_distance(face_descriptors(image, [f.ibug68 for f in faces]), ref)[:, 0]
+        if dist.min() < SAME_PERSON_DISTANCE:
+            return faces[int(np.argmin(dist))]
+    raise FitError(_OTHERS)
 
 
 def _faces_seen(picture: Picture, landmark_detector: str, face_detector: str) -> int:
