@@ -63,8 +63,9 @@ TRACKING_DETECTORS = {"fused": "network"}
 """``landmark_detector="auto"`` resolved (:func:`morphable.detection.resolve_detectors`) -> what
 the tracker reads faces with: the landmark network alone where "auto" would fuse it with the
 face mesh. On the benchmark's clips (``python -m evaluation.bench_footage --clips 3``,
-docs/video.md) the fused reading costs 2.4 x the network's per face (24 against 8 ms) for an
-eye-centre error no lower (3.18 against 3.21 % of the interocular distance)."""
+docs/video.md) the fused reading costs 3 x the network's per face (24 against 8 ms in a
+cProfile of three faces) for an eye-centre error no lower (3.17 against 3.20 % of the
+interocular distance, the mean of three clips)."""
 DESCRIPTOR_EVERY_S = 1.0
 """A track's face descriptor is computed on its first frame and then this often (seconds)."""
 MAX_DESCRIPTORS = 5
