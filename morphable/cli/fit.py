@@ -58,8 +58,8 @@ def add_parser(sub):
     p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
                    help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
     p.add_argument("--overlay-mask", action="store_true",
-                   help="tint red on --overlay the face pixels the photometric mask leaves out "
-                        "(needs --refine)")
+                   help="tint red on --overlay the face pixels the photometric mask weighs "
+                        "under 0.5 (needs --refine)")
     p.add_argument("--refine", choices=("photometric", "classical", "gar"),
                    help="then fit the pixels, all frames with one identity (needs torch, the "
                         "neural extra): photometric (albedo texture and light in closed form, "
