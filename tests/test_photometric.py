@@ -221,6 +221,11 @@ def test_cli_writes_the_albedo_and_the_mask(data_dir, tmp_path):
     assert 0.05 < run["mask_coverage"] <= 1 and run["photometric_residual"] < 0.2
     assert set(run["stage_s"]) == {"set_up", "appearance", "mask", "visibility", "geometry"}
     assert Image.open(overlay).size == Image.open(img).size
+    # on request the photos' colours instead (shading included)
+    assert main(["fit", str(img), "--landmarks", str(pts), "--refine", "photometric", "--steps", "1",
+                 "--out-texture", str(tex), "--texture-size", "64", "--texture-source", "photo",
+                 "--report", str(report)]) == 0
+    assert json.loads(report.read_text())["texture"]["kind"] == "photo"
 
 
 @pytest.mark.parametrize("kind", ["black", "saturated"])

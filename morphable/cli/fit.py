@@ -51,6 +51,10 @@ def add_parser(sub):
                         "photometric the recovered albedo (the model needs UVs); an .obj "
                         "--out-mesh then names it through an .mtl beside it")
     p.add_argument("--texture-size", type=int, default=512, help="texels per side (default 512)")
+    p.add_argument("--texture-source", choices=("albedo", "photo"), default="albedo",
+                   help="what --out-texture holds after --refine photometric: the recovered albedo "
+                        "(default) or the photos' colours, shading included (without the "
+                        "photometric refinement always the photos' colours)")
     p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "
                                      "(several images: NAME_0.png, NAME_1.png, ...)")
     p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
@@ -120,7 +124,8 @@ def run(args):
                  texture_size=args.texture_size,
                  overlay_style=None if args.overlay_style == "none" else args.overlay_style,
                  overlay_crop=args.overlay_crop, refine_render=args.refine_render,
-                 mesh_kind=args.mesh, overlay_mask=args.overlay_mask)
+                 mesh_kind=args.mesh, overlay_mask=args.overlay_mask,
+                 albedo=args.texture_source == "albedo")
     report, res = result.report, result.fit
     for picture, run in zip(result.pictures, report.get("refine", [])):
         if run["fallback"]:
