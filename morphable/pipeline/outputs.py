@@ -97,7 +97,7 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
             from ..raster import save_image_png
 
             written.append(Path(save_image_png(texture, resize_texture(recovered, texture_size))))
-            tex = True
+            tex = recovered                 # the model's own UVs go with it
             content["texture"] = {"path": str(texture), "size": texture_size,
                                   "kind": "albedo (photometric refinement)"}
         elif texture:
