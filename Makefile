@@ -8,7 +8,8 @@ OUT := out
 DATA := ../shared/data
 
 .PHONY: install demo test docs bench clean system-deps gar-data gar-data-128 gar-gpu landmark-data \
-	landmark-annotated landmark-profiled landmark-synthetic landmark-train landmark-gpu landmark-onnx
+	landmark-annotated landmark-profiled landmark-synthetic landmark-train landmark-gpu landmark-onnx \
+	gpu-probe gpu-travel-landmarks gpu-travel-gar gpu-restore
 
 install: $(STAMP)
 
@@ -50,9 +51,11 @@ gar-data: $(STAMP)
 # the same photos at 128 px for the GPU recipe, normals stored at 64 px so that the pack (56 MiB)
 # and the tree stay within the 64 MiB that reach a GPU machine (docs/neural.md, "GPU recipe");
 # refits nothing after gar-data (the fits are cached in gar_data/)
+# GAR128_MIB=34 for a GPU run that continues the committed GARs (docs/gpu_runs.md)
+GAR128_MIB ?= 57
 gar-data-128: $(STAMP)
 	$(BIN)/python -m neural.gar.build_real --data $(DATA) --out gar_data/real128.npz --resolution 128 \
-		--normal-resolution 64 --jpeg-quality 60 --max-mib 57 --workers 2
+		--normal-resolution 64 --jpeg-quality 60 --max-mib $(GAR128_MIB) --workers 2
 
 # the landmark network's real packs (docs/landmark_packs.md) into the ignored landmark_data/:
 # the annotated photos (~10 min on the 2 cores), then the profiled ones (~30 min); a rerun
@@ -78,9 +81,17 @@ landmark-train: $(STAMP)
 landmark-onnx: $(STAMP)
 	$(BIN)/python -m neural.landmarks.export --weights neural/landmarks/weights/landmarks.pt
 
-# the GPU recipe: one job, 8 minutes (issue "the landmark network at scale")
+# the GPU run (docs/gpu_runs.md), on the GPU machine: 8,000 synthetic faces rendered there on
+# its 16 cores, the carried compact real packs, LANDMARK_MINUTES of training continuing
+# LANDMARK_INIT (the committed network; empty: from scratch, e.g. LANDMARK_ARCH=wide)
+LANDMARK_ARCH ?= small
+LANDMARK_INIT ?= neural/landmarks/weights/landmarks.pt
+LANDMARK_MINUTES ?= 5
 landmark-gpu:
-	$(GPU_PYTHON) -m neural.gpu_recipe landmarks $(LANDMARK_PACKS) --out $(GPU_OUT)
+	$(GPU_PYTHON) -m neural.gpu_recipe landmarks --generate 8000 --kit gpu_kit/data \
+		--annotated landmark_data/annotated_trainval_128.npz --profiled landmark_data/profiled_128.npz \
+		--arch $(LANDMARK_ARCH) $(if $(LANDMARK_INIT),--init $(LANDMARK_INIT)) \
+		$(if $(GPU_BATCH),--batch-size $(GPU_BATCH)) --minutes $(LANDMARK_MINUTES) --out $(GPU_OUT)
 
 landmark-annotated: $(STAMP)
 	$(BIN)/python -m neural.faces.build_annotated --data $(DATA) --out landmark_data/annotated
@@ -105,9 +116,28 @@ docs: $(STAMP)
 # the working tree
 GPU_PYTHON ?= python3
 GPU_OUT ?= runs/gpu
+GAR_MINUTES ?= 1.5
 gar-gpu:
 	$(GPU_PYTHON) -m neural.gpu_recipe gar --data gar_data/real128.npz --out $(GPU_OUT) \
-		--runs runs/gpu-recipe --minutes 5 --inverter-minutes 1 --device cuda
+		--runs runs/gpu-recipe --minutes $(GAR_MINUTES) --inverter-minutes 0.5 --device cuda \
+		--continue $(if $(GPU_BATCH),--batch-size $(GPU_BATCH))
+
+# the one-minute throughput probe (docs/gpu_runs.md): images/s of GPU_PROBE's recipes at batch
+# 64, 256 and 512 on random data of the real shapes, into GPU_OUT/probe.json
+GPU_PROBE ?= landmarks,landmarks-wide
+gpu-probe:
+	$(GPU_PYTHON) -m evaluation.bench_training_step --recipes $(GPU_PROBE) --device cuda --amp bf16 \
+		--channels-last --batch-size 64,256,512 --steps 30 --sync-every 25 --report $(GPU_OUT)/probe.json
+
+# here, before the device call: what travels (neural.gpu_travel), the tracked files the run does
+# not read parked out of the tree; gpu-restore after it
+gpu-travel-landmarks: $(STAMP)
+	$(BIN)/python -m neural.gpu_travel kit --data $(DATA)
+	$(BIN)/python -m neural.gpu_travel park landmarks
+gpu-travel-gar: $(STAMP)
+	$(BIN)/python -m neural.gpu_travel park gar
+gpu-restore: $(STAMP)
+	$(BIN)/python -m neural.gpu_travel restore
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -16,8 +16,9 @@ Three products, each a subpackage, over a thin shared layer:
 
 Shared by every network: :mod:`neural.training` (the loop, checkpoints with resume, logs),
 :mod:`neural.checkpoint` (loading a network from a file with one-line errors),
-:mod:`neural.augment` (differentiable augmentation) and :mod:`neural.gpu_recipe` (one
-command that trains on a lent GPU within a time budget).
+:mod:`neural.augment` (differentiable augmentation), :mod:`neural.gpu_recipe` (one
+command that trains on a lent GPU within a time budget) and :mod:`neural.gpu_travel` (what
+travels to that GPU, the rest parked out of the tree).
 
 Imports point downwards: ``gar`` and ``landmarks`` use ``faces`` and the shared layer,
 ``faces`` only the shared layer and :mod:`morphable`. Reconstruction by inverting a renderer

@@ -11,8 +11,9 @@ the paper's code (images in [-1, 1]):
 - ``translation``: an integer shift of up to 1/8 of the side in x and y, zero padded;
 - ``cutout``: one square of half the side, at a random place, set to zero.
 
-Random draws come from a CPU :class:`torch.Generator` (so a seed gives the same transforms
-on any device) and are the same for every channel of an image, different per image.
+Random draws come from the :class:`torch.Generator` given, on its device (a CPU generator
+gives the same transforms on any device; a GPU's own, :func:`neural.training.step_generator`,
+needs no copy to it), and are the same for every channel of an image, different per image.
 
 Examples
 --------
@@ -47,8 +48,13 @@ def parse_policy(policy: str) -> tuple:
     return names
 
 
+def _home(gen):
+    """Where ``gen`` draws (torch's global generator: the CPU)."""
+    return gen.device if gen is not None else torch.device("cpu")
+
+
 def _uniform(shape, gen, device, dtype):
-    return torch.rand(shape, generator=gen).to(device=device, dtype=dtype)
+    return torch.rand(shape, generator=gen, device=_home(gen)).to(device=device, dtype=dtype)
 
 
 def _color(x, gen):
@@ -63,8 +69,8 @@ def _color(x, gen):
 def _translation(x, gen, ratio=0.125):
     B, _, H, W = x.shape
     sh, sw = int(H * ratio + 0.5), int(W * ratio + 0.5)
-    dy = torch.randint(-sh, sh + 1, (B, 1, 1), generator=gen).to(x.device)
-    dx = torch.randint(-sw, sw + 1, (B, 1, 1), generator=gen).to(x.device)
+    dy = torch.randint(-sh, sh + 1, (B, 1, 1), generator=gen, device=_home(gen)).to(x.device)
+    dx = torch.randint(-sw, sw + 1, (B, 1, 1), generator=gen, device=_home(gen)).to(x.device)
     b, gy, gx = torch.meshgrid(torch.arange(B, device=x.device), torch.arange(H, device=x.device),
                                torch.arange(W, device=x.device), indexing="ij")
     # out[y, x] = in[y + dy, x + dx], zero outside (the 1-pixel zero border of the padding)
@@ -77,8 +83,8 @@ def _translation(x, gen, ratio=0.125):
 def _cutout(x, gen, ratio=0.5):
     B, _, H, W = x.shape
     ch, cw = int(H * ratio + 0.5), int(W * ratio + 0.5)
-    oy = torch.randint(0, H + (1 - ch % 2), (B, 1, 1), generator=gen).to(x.device)
-    ox = torch.randint(0, W + (1 - cw % 2), (B, 1, 1), generator=gen).to(x.device)
+    oy = torch.randint(0, H + (1 - ch % 2), (B, 1, 1), generator=gen, device=_home(gen)).to(x.device)
+    ox = torch.randint(0, W + (1 - cw % 2), (B, 1, 1), generator=gen, device=_home(gen)).to(x.device)
     b, gy, gx = torch.meshgrid(torch.arange(B, device=x.device), torch.arange(ch, device=x.device),
                                torch.arange(cw, device=x.device), indexing="ij")
     gy = (gy + oy - ch // 2).clamp(0, H - 1)
@@ -94,8 +100,8 @@ _TRANSFORMS = {"color": _color, "translation": _translation, "cutout": _cutout}
 def diff_augment(images: torch.Tensor, policy: str | tuple, generator=None) -> torch.Tensor:
     """Augment (B, 3, H, W) images in [-1, 1] by ``policy`` (a comma-separated string or a
     tuple of :data:`POLICIES`, applied in the order given); an empty policy returns
-    ``images`` itself. ``generator``: CPU :class:`torch.Generator` of the random draws
-    (default torch's global one)."""
+    ``images`` itself. ``generator``: :class:`torch.Generator` of the random draws, on the
+    CPU or on the images' device (default torch's global one)."""
     names = parse_policy(policy) if isinstance(policy, str) else tuple(policy)
     for name in names:
         images = _TRANSFORMS[name](images, generator)

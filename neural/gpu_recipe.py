@@ -2,18 +2,24 @@
 and leaves their weights, logs and one JSON summary in an output folder.
 
 ``python -m neural.gpu_recipe gar --data gar_data/real128.npz --out OUT --minutes 5
-[--inverter-minutes 1] [--device cuda]`` (``make gar-gpu``);
-``python -m neural.gpu_recipe landmarks --synthetic PACK [PACK ...] [--annotated PACK]
-[--profiled PACK] --out OUT --minutes 8`` (the landmark network,
+[--inverter-minutes 1] [--device cuda] [--continue] [--side-by-side] [--compile]``
+(``make gar-gpu``);
+``python -m neural.gpu_recipe landmarks [--synthetic PACK ...] [--annotated PACK]
+[--profiled PACK] [--generate N --kit DIR] [--arch small|wide] [--init WEIGHTS | --continue]
+--out OUT --minutes 8`` (``make landmark-gpu``: the landmark network,
 :mod:`neural.landmarks.train` with its ``gpu`` recipe: ``landmarks_gpu.pt``, its
 ``validation.jsonl`` as ``validation_landmarks.jsonl``, ``recipe.json``, ``log.txt``).
+
+``--continue`` starts each network from its committed weights (:data:`CONTINUE`), so that
+one GPU run continues the last (docs/gpu_runs.md); ``--generate N`` first renders N
+synthetic faces on the GPU machine's cores from the kit of :mod:`neural.gpu_travel`.
 
 A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
 command of this package with its own time limit (``--max-minutes``; the runner kills a job
 that overruns it by ``GRACE_MINUTES``). Side by side was meant to fill the GPU's idle time
 between the small networks' kernel launches; on the first run (an H200, three GARs) each
 trained at 0.4 s per step of 64, far below the estimate, and one job alone was not measured
-(docs/neural.md, "The GPU recipe and its first run"). While a job runs, its newest weights are
+(docs/history.md, "The GPU recipe and its first run"; docs/gpu_runs.md). While a job runs, its newest weights are
 copied into the output folder every ``POLL_SECONDS``, so a run cut off from outside still
 leaves the last checkpoint's weights (the trainers write one each minute). Output file names
 are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool returns at most
@@ -24,12 +30,13 @@ are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool re
 and the torch version. ``log.txt``: every job's output.
 
 The ``gar`` recipe trains ``tiny-gpu`` (64 px), ``tiny128-gpu`` (128 px) and ``tiny-gpu``
-with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack side by side (a 128-px pack
-serves all: the 64-px runs area-downsample it), then the first two's inverters V, side by
-side too; it returns ``gar_64.pt``, ``gar_128.pt``, ``gar_64_no_norm_cycle.pt``,
-``inverter_64.pt``, ``inverter_128.pt``, ``recipe.json`` and ``log.txt`` (sample grids are
-made from the weights afterwards: ``evaluation.gar_quality --grid``). ``--max-steps N`` runs
-N steps of each job instead (the CPU test of the recipe).
+with lambda_n = 0 (the "w/o norm-cycle" ablation) on one pack, one at a time (with
+``--side-by-side`` together, the first run's way; a 128-px pack serves all: the 64-px runs
+area-downsample it), then the first two's inverters V; it returns ``gar_64.pt``,
+``gar_128.pt``, ``gar_64_no_norm_cycle.pt``, ``inverter_64.pt``, ``inverter_128.pt``,
+``recipe.json`` and ``log.txt`` (sample grids are made from the weights afterwards:
+``evaluation.gar_quality --grid``). ``--max-steps N`` runs N steps of each job instead (the
+CPU test of the recipe).
 """
 from __future__ import annotations
 
@@ -46,7 +53,8 @@ from morphable.errors import InputError, one_line_errors
 from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
-__all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "POLL_SECONDS", "GRACE_MINUTES"]
+__all__ = ["gar_recipe", "landmark_recipe", "run_recipe", "main", "RECIPES", "CONTINUE",
+           "POLL_SECONDS", "GRACE_MINUTES"]
 
 POLL_SECONDS = 15
 GRACE_MINUTES = 2.0
@@ -61,9 +69,14 @@ def _job(name, module, args, minutes, outputs, run_dir):
 
 def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.0,
                device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
-               aux_dir: str = "neural/gar/weights/real") -> list:
-    """The GAR's stages: [[tiny-gpu, tiny128-gpu, tiny-gpu with lambda_n = 0], [the first
-    two's inverters]] (see the module); ``max_steps``, ``batch_size`` and ``overrides``
+               aux_dir: str = "neural/gar/weights/real", init=None,
+               side_by_side: bool = False, compile: bool = False) -> list:
+    """The GAR's stages (see the module): tiny-gpu, tiny128-gpu and tiny-gpu with
+    lambda_n = 0, then the first two's inverters; one job at a time, or with
+    ``side_by_side`` the GARs together and then the inverters together; ``compile``: the
+    GARs' ``--compile``. ``init``: dict job
+    name -> weights its run starts from (``--init``; default none: from scratch; the
+    committed ones: :data:`CONTINUE`). ``max_steps``, ``batch_size`` and ``overrides``
     (``KEY=VALUE`` config fields of every GAR, e.g. smaller widths) shrink it for a test."""
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
@@ -72,12 +85,15 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
     stages = [[], []]
     for name, config, extra, stem in gars:
         gdir = Path(run_dir) / name
+        start = ["--init", init[name]] if init and init.get(name) else []
+        start += ["--compile"] if compile else []
         stages[0].append(_job(name, "neural.gar.train", [
             "--config", config, "--data", data, "--aux-dir", aux_dir, "--set",
             *overrides, *extra, "--out", gdir, "--device", device, "--amp",
             "bf16" if device != "cpu" else "none", "--channels-last", "--steps", 10**6,
-            "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit], minutes,
-            {"generator.pt": f"{stem}.pt", "summary.json": f"summary_{stem}.json"}, run_dir))
+            "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *start, *limit],
+            minutes, {"generator.pt": f"{stem}.pt", "summary.json": f"summary_{stem}.json"},
+            run_dir))
         if extra:
             continue
         tag = stem[4:]
@@ -88,21 +104,42 @@ def gar_recipe(data, run_dir, minutes: float = 5.0, inverter_minutes: float = 1.
             inverter_minutes, "--eval-steps", max_steps or 100, "-q"], inverter_minutes,
             {"inverter.pt": f"inverter_{tag}.pt", "metrics.json": f"summary_inv_{tag}.json"},
             run_dir))
-    return stages
+    # one at a time by default: side by side, each small launch-bound job waited through the
+    # others' time slices (the first GPU run, docs/neural.md)
+    return stages if side_by_side else [[job] for stage in stages for job in stage]
 
 
 def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minutes: float = 8.0,
-                    device: str = "cuda", max_steps=None, batch_size=None, overrides=()) -> list:
-    """The landmark network's one stage: :mod:`neural.landmarks.train` ``--recipe gpu`` on
-    the packs, for ``minutes`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+                    device: str = "cuda", max_steps=None, batch_size=None, overrides=(),
+                    init=None, arch: str = "small", generate: int = 0, kit=None,
+                    generate_px: int = 160, generate_minutes: float = 1.0,
+                    workers: int = 16, compile: bool = False) -> list:
+    """The landmark network's stages: with ``generate`` (faces), first
+    :mod:`neural.faces.build_synthetic` makes that many SFM faces of ``generate_px`` (the
+    side of the committed synthetic packs; the trainer resamples its crops from them) on
+    ``workers`` processes from ``kit`` (:mod:`neural.gpu_travel`'s; procedural albedo and
+    backgrounds), which join ``synthetic`` (packs of that side); then :mod:`neural.landmarks.train`
+    ``--recipe gpu --arch arch`` on the packs for ``minutes``, from ``init`` (weights) when
+    given, with ``--compile`` when ``compile`` (``max_steps``, ``batch_size``, ``overrides``: a test's)."""
+    stages = []
+    synthetic = list(synthetic)
+    if generate:
+        pack = Path(run_dir) / "synthetic_generated"
+        stages.append([_job("generate", "neural.faces.build_synthetic", [
+            "--out", pack, "--n", generate, "--resolution", generate_px, "--seed", 101,
+            "--workers", workers, "--data", kit or "gpu_kit/data", "--textures", 0,
+            "--backgrounds", "none", "-q"], generate_minutes, {}, run_dir)])
+        synthetic.append(pack)
     packs = (["--synthetic", *synthetic] if synthetic else [])
     packs += ["--annotated", annotated] if annotated else []
     packs += ["--profiled", profiled] if profiled else []
     limit = ["--max-steps", max_steps] if max_steps else []
     limit += ["--batch-size", batch_size] if batch_size else []
+    limit += ["--init", init] if init else []
+    limit += ["--compile"] if compile else []
     folder = Path(run_dir) / "landmarks"
-    return [[_job("landmarks", "neural.landmarks.train", [
-        "--recipe", "gpu", *packs, "--out", folder, "--device", device,
+    return stages + [[_job("landmarks", "neural.landmarks.train", [
+        "--recipe", "gpu", "--arch", arch, *packs, "--out", folder, "--device", device,
         "--max-minutes", minutes, "--checkpoint-minutes", 1, "-q", *limit,
         *(["--set", *overrides] if overrides else [])], minutes,
         {"landmarks.pt": "landmarks_gpu.pt", "summary.json": "summary_landmarks.json",
@@ -110,6 +147,12 @@ def landmark_recipe(run_dir, synthetic=(), annotated=None, profiled=None, minute
 
 
 RECIPES = {"gar": gar_recipe, "landmarks": landmark_recipe}
+
+CONTINUE = {"landmarks": "neural/landmarks/weights/landmarks.pt",
+            "gar64": "neural/gar/weights/real/gar_tiny.pt",
+            "gar128": "neural/gar/weights/gpu/gar_128.pt"}
+"""``--continue``: the committed weights each run starts from (the best 64-px GAR, trained
+on the CPU, and the 128-px one of the first GPU run; the landmark network)."""
 
 
 def _copy_outputs(job, out: Path, seen: dict) -> None:
@@ -211,6 +254,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, help="every job's batch size (tests)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="config fields of every GAR (tests: smaller networks)")
+    p.add_argument("--continue", dest="resume_committed", action="store_true",
+                   help="start each network from its committed weights (CONTINUE)")
+    p.add_argument("--init", metavar="WEIGHTS", help="landmarks: start from these weights")
+    p.add_argument("--arch", default="small", help="landmarks: small or wide")
+    p.add_argument("--generate", type=int, default=0, metavar="N",
+                   help="landmarks: first render N synthetic faces there (needs --kit)")
+    p.add_argument("--generate-px", type=int, default=160, help="landmarks: their side")
+    p.add_argument("--kit", default="gpu_kit/data", help="landmarks: the data kit of "
+                   "neural.gpu_travel kit (the SFM model)")
+    p.add_argument("--workers", type=int, default=16, help="landmarks: rendering processes")
+    p.add_argument("--compile", action="store_true", help="torch.compile the trained networks")
+    p.add_argument("--side-by-side", action="store_true",
+                   help="gar: the GARs at the same time (the first run's way), not one by one")
     add_verbosity_arguments(p)
     return p
 
@@ -220,20 +276,31 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     configure(verbosity(args))
     common = dict(device=args.device, max_steps=args.max_steps, batch_size=args.batch_size,
-                  overrides=args.set)
+                  overrides=args.set, compile=args.compile)
     if args.recipe == "gar":
         if args.data is None or not Path(args.data).is_file():
             raise InputError(f"{args.data}: pack not found (build it with `make gar-data`)")
         stages = gar_recipe(args.data, args.runs, minutes=args.minutes or 5.0,
-                            inverter_minutes=args.inverter_minutes, **common)
+                            inverter_minutes=args.inverter_minutes,
+                            init=CONTINUE if args.resume_committed else None,
+                            side_by_side=args.side_by_side, **common)
     else:
         packs = [*args.synthetic, args.annotated, args.profiled]
         missing = next((p for p in packs if p is not None and not Path(p).exists()), None)
-        if missing is not None or not any(packs):
+        if missing is not None or not (any(packs) or args.generate):
             raise InputError(f"{missing or '--synthetic'}: landmark pack not found (build the "
                              "packs with `make landmark-data` and neural.faces.build_synthetic)")
+        if args.generate and not Path(args.kit).is_dir():
+            raise InputError(f"{args.kit}: no data kit for --generate (python -m "
+                             "neural.gpu_travel kit)")
+        init = args.init or (CONTINUE["landmarks"] if args.resume_committed else None)
+        if init and not Path(init).is_file():
+            raise InputError(f"{init}: landmark weights not found")
         stages = landmark_recipe(args.runs, args.synthetic, args.annotated, args.profiled,
-                                 minutes=args.minutes or 8.0, **common)
+                                 minutes=args.minutes or 8.0, init=init, arch=args.arch,
+                                 generate=args.generate, kit=args.kit, workers=args.workers,
+                                 generate_px=args.generate_px,
+                                 **common)
     report = run_recipe(stages, args.out)
     failed = [k for k, v in report["jobs"].items() if v["returncode"] != 0]
     print(json.dumps({k: {"returncode": v["returncode"], "wall_seconds": v["wall_seconds"]}

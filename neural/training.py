@@ -14,7 +14,10 @@ A subclass provides:
 - ``weights()`` and ``WEIGHTS_FILE``: what the weights file beside the checkpoint holds (CPU
   tensors: a file written on a GPU must load where there is none);
 - ``batches(start)``: an iterator of batches for steps ``start, start + 1, ...``;
-- ``train_step(batch) -> dict`` of float loss terms (increments ``self.step``);
+- ``train_step(batch) -> dict`` of loss terms (increments ``self.step``): floats or 0-d
+  tensors left on the device; the loop reads them in one transfer every ``sync_every``
+  steps (1 on the CPU, where reading costs nothing: every step; ``SYNC_EVERY_DEVICE`` on a
+  GPU, which otherwise waits for the host at every step);
 - optionally ``sample_grid(path)`` (pictures of the run) and ``REPORT_KEYS`` (the terms the
   progress line shows).
 """
@@ -34,10 +37,14 @@ import torch
 
 from morphable.errors import InputError, MorphableError
 
-__all__ = ["AMP_DTYPES", "TrainingRun", "cpu_state", "device_from", "device_name", "parse_set"]
+__all__ = ["AMP_DTYPES", "SYNC_EVERY_DEVICE", "TrainingRun", "cpu_state", "device_from",
+           "device_name", "parse_set", "read_terms", "step_generator", "to_device"]
 
 AMP_DTYPES = {"bf16": "bfloat16", "none": None}
 """``--amp`` choices -> the torch.autocast dtype (None: full precision)."""
+
+SYNC_EVERY_DEVICE = 25
+"""Steps between two reads of the loss terms on an accelerator (:class:`TrainingRun`)."""
 
 log = logging.getLogger("neural.training")
 
@@ -80,6 +87,35 @@ def parse_set(items) -> dict:
     return out
 
 
+def to_device(x: torch.Tensor, device) -> torch.Tensor:
+    """A CPU tensor on ``device`` without making the host wait: through pinned memory and an
+    asynchronous copy (a plain ``.to("cuda")`` waits for every kernel queued before it). The
+    tensor itself on the CPU, or when it is on ``device`` already."""
+    device = torch.device(device)
+    if x.device == device or device.type != "cuda":
+        return x.to(device)
+    return x.pin_memory().to(device, non_blocking=True)
+
+
+def step_generator(seed: int, device) -> torch.Generator:
+    """The random generator of one step, seeded by ``seed``, on ``device``: the CPU's
+    generator there (the draws of every earlier run), the device's own elsewhere, so that
+    the step's draws need no copy to the device (different numbers from the CPU's)."""
+    device = torch.device(device)
+    gen = torch.Generator() if device.type == "cpu" else torch.Generator(device=device)
+    return gen.manual_seed(int(seed))
+
+
+def read_terms(rows: list) -> list:
+    """``rows`` (dicts of floats and 0-d tensors) -> the same dicts of floats, every tensor
+    read in one device-to-host transfer (one synchronisation however many steps)."""
+    tensors = [v for r in rows for v in r.values() if torch.is_tensor(v)]
+    if not tensors:
+        return [dict(r) for r in rows]
+    values = iter(torch.stack([t.detach().float().reshape(()) for t in tensors]).cpu().tolist())
+    return [{k: next(values) if torch.is_tensor(v) else v for k, v in r.items()} for r in rows]
+
+
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
@@ -102,12 +138,19 @@ class TrainingRun:
     device : torch device name
     amp : ``"bf16"`` for bfloat16 autocast of the forward passes, None or ``"none"`` for float32
     channels_last : networks and images in channels-last memory format
+    compile : compile the networks given to :meth:`compiled` (``torch.compile`` through
+        ``Module.compile``: the same parameters and state-dict names, so checkpoints and
+        weights files do not change); for launch-bound small networks on a GPU
+    sync_every : steps between reads of the loss terms (default 1 on the CPU,
+        :data:`SYNC_EVERY_DEVICE` elsewhere); a NaN is reported at most this many steps late,
+        and never reaches a checkpoint (the terms are read before each one)
     """
 
     WEIGHTS_FILE = "weights.pt"
     REPORT_KEYS: tuple = ()
 
-    def __init__(self, out, device="cpu", amp=None, channels_last: bool = False):
+    def __init__(self, out, device="cpu", amp=None, channels_last: bool = False,
+                 sync_every=None, compile: bool = False):
         if amp is not None and amp not in AMP_DTYPES:
             raise InputError(f"--amp must be one of {', '.join(AMP_DTYPES)}, got {amp!r}")
         self.device = device_from(device)
@@ -115,8 +158,12 @@ class TrainingRun:
             torch.backends.cudnn.benchmark = True     # fixed shapes: pick the fastest kernels
         self.amp_dtype = getattr(torch, AMP_DTYPES[amp]) if AMP_DTYPES.get(amp) else None
         self.channels_last = bool(channels_last)
+        self.compile = bool(compile)
+        self.sync_every = max(1, int(sync_every or (1 if self.device.type == "cpu"
+                                                     else SYNC_EVERY_DEVICE)))
         self.out = Path(out)      # created by the subclass once its inputs loaded, or by fit
         self.step = 0
+        self.train_seconds = 0.0  # every fit's, batches and reads included (checkpoints may keep it)
 
     def layout(self, x):
         """A module or tensor on the device, channels-last with ``channels_last`` (4-D
@@ -125,6 +172,12 @@ class TrainingRun:
         if self.channels_last and (isinstance(x, torch.nn.Module) or x.dim() == 4):
             x = x.to(memory_format=torch.channels_last)
         return x
+
+    def compiled(self, module):
+        """``module``, compiled in place with ``compile`` (see the class)."""
+        if self.compile:
+            module.compile()
+        return module
 
     def autocast(self):
         """The forward passes' autocast context (a no-op in float32)."""
@@ -181,11 +234,12 @@ class TrainingRun:
         """Pictures of the run so far (none by default)."""
         return None
 
-    def finite_or_raise(self, terms: dict) -> dict:
-        """``terms`` when every loss is finite; a MorphableError naming the step otherwise
-        (never a silent NaN)."""
+    def finite_or_raise(self, terms: dict, step=None) -> dict:
+        """``terms`` (floats) when every loss is finite; a MorphableError naming the step
+        (default the current one) otherwise (never a silent NaN)."""
         if not all(np.isfinite(v) for v in terms.values()):
-            raise MorphableError(f"training diverged at step {self.step}: {terms}")
+            raise MorphableError(f"training diverged at step {self.step if step is None else step}: "
+                                 f"{terms}")
         return terms
 
     def report(self, terms: dict, steps: int, images: int, seconds: float, out=None) -> str:
@@ -206,7 +260,8 @@ class TrainingRun:
         losses and throughput every ``config.print_every`` steps and at the end.
 
         ``checkpoint_minutes``: also a checkpoint each time this many minutes have passed
-        since the last one (a run cut off from outside still leaves recent weights).
+        since the last one (a run cut off from outside still leaves recent weights);
+        ``summary.json`` is rewritten with each checkpoint.
         Ctrl-C or SIGTERM: a checkpoint, then KeyboardInterrupt.
         At the end, ``summary.json`` in the output folder: the config, step, images seen in
         all (step x batch size), this call's training seconds, images/s and wall seconds,
@@ -223,6 +278,22 @@ class TrainingRun:
         start = last_save = time.monotonic()
         train_seconds, window, terms = 0.0, [0.0, 0], None
         recent = collections.deque(maxlen=max(cfg.print_every, 1))   # for summary.json
+        pending = []       # steps whose terms are not read yet (tensors on the device)
+
+        def flush():
+            """Read the pending steps' terms (one transfer), check them, log them."""
+            nonlocal terms
+            for row in read_terms(pending):
+                self.finite_or_raise({k: v for k, v in row.items()
+                                      if k not in ("step", "seconds")}, row["step"])
+                logf.write(json.dumps(row) + "\n")
+                recent.append(row)
+                terms = row
+            logf.flush()
+            if pending:
+                bar.set_postfix({k: f"{terms[k]:.3f}" for k in self.REPORT_KEYS if k in terms})
+            pending.clear()
+
         previous = _stop_on_sigterm()
         try:
             it = iter(self.batches(self.step))
@@ -231,31 +302,43 @@ class TrainingRun:
                 if over_time or (max_steps is not None and self.step - first >= max_steps):
                     log.info("%s reached at step %d", f"time budget of {max_minutes:g} min"
                              if over_time else f"--max-steps {max_steps}", self.step)
+                    flush()
                     self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
                     self.save()
                     break
+                # the step's seconds count its batch too, and the read of the terms where
+                # it ends with one (on a GPU the kernels finish there): images/s is what the
+                # run achieves, not what the step's Python alone takes
                 t0 = time.perf_counter()
-                terms = self.train_step(next(it))
-                dt = time.perf_counter() - t0
-                train_seconds += dt
-                window = [window[0] + dt, window[1] + 1]
-                terms["step"], terms["seconds"] = self.step, round(dt, 4)
-                logf.write(json.dumps(terms) + "\n")
-                logf.flush()
-                recent.append(terms)
+                row = self.train_step(next(it))
+                row["step"], row["seconds"] = self.step, round(time.perf_counter() - t0, 4)
+                pending.append(row)
                 bar.update(1)
-                bar.set_postfix({k: f"{terms[k]:.3f}" for k in self.REPORT_KEYS if k in terms})
-                if cfg.print_every and self.step % cfg.print_every == 0:
-                    self.report(terms, steps, window[1] * cfg.batch_size, window[0])
-                    window = [0.0, 0]
-                if self.step % cfg.sample_every == 0 or self.step == steps:
-                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
+                report = cfg.print_every and self.step % cfg.print_every == 0
+                sample = self.step % cfg.sample_every == 0 or self.step == steps
                 due = (checkpoint_minutes is not None
                        and time.monotonic() - last_save > 60 * checkpoint_minutes)
-                if self.step % cfg.checkpoint_every == 0 or self.step == steps or due:
+                save = self.step % cfg.checkpoint_every == 0 or self.step == steps or due
+                if len(pending) >= self.sync_every or report or sample or save:
+                    flush()
+                dt = time.perf_counter() - t0
+                train_seconds += dt
+                self.train_seconds += dt
+                window = [window[0] + dt, window[1] + 1]
+                if report:
+                    self.report(terms, steps, window[1] * cfg.batch_size, window[0])
+                    window = [0.0, 0]
+                if sample:
+                    self.sample_grid(self.out / "samples" / f"step-{self.step:06d}.png")
+                if save:
                     self.save()
+                    # the run so far, beside the weights: a run cut off from outside still
+                    # tells its losses, images seen and images/s
+                    self.write_summary(recent, self.step - first, train_seconds,
+                                       time.monotonic() - start)
                     last_save = time.monotonic()
         except KeyboardInterrupt:
+            flush()
             self.save()
             raise
         finally:

@@ -23,7 +23,7 @@ def add_fitting_arguments(parser) -> None:
     parser.add_argument("--robust", choices=("huber",), default=None,
                         help="huber: Huber loss against outlying landmarks (default: least squares)")
     parser.add_argument("--landmark-std", type=landmark_std_arg, default=1.0, metavar="PX|auto",
-                        help="landmark noise in px, or auto: estimated from the fit (default 1)")
+                        help="landmark noise in px, or auto: estimated from the fit (default 1 px)")
     add_detector_arguments(parser)
 
 
@@ -38,7 +38,8 @@ def add_detector_arguments(parser) -> None:
                              "the face mesh in the network's box, the two fused by their "
                              "uncertainty; either alone where the other finds no face); auto "
                              "(default): fused where mediapipe is installed and the network can run "
-                             "(torch and its weights), else facemesh, else network, else dlib")
+                             "(its weights, with onnxruntime or torch), else facemesh, else "
+                             "network, else dlib")
     faces = dict.fromkeys(f for v in FACE_DETECTORS.values() for f in v)
     parser.add_argument("--face-detector", choices=tuple(faces), default="auto",
                         help="the landmark detector's face detector: short-range or full-range "

@@ -6,7 +6,8 @@ def add_parser(sub):
     p = sub.add_parser("download", help="download a model's original public files (sha256-checked)")
     p.add_argument("name", choices=sorted(MODELS))
     p.add_argument("--dest", help="folder (default: the user cache, ~/.cache/morphable)")
-    p.add_argument("--url", help="alternative source (a mirror, or a file:// folder or zip)")
+    p.add_argument("--url", help="alternative source (a mirror, or a file:// folder or zip) "
+                                 "(default: the model's public original)")
     return p
 
 

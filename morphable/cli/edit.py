@@ -17,18 +17,21 @@ from .common import (add_detector_arguments, add_loss_weight_argument, add_model
 def add_parser(sub):
     p = sub.add_parser("edit", help="change the pose/expression of a face in an image "
                                     "(neural renderer inversion)")
-    p.add_argument("image", metavar="IMAGE")
+    p.add_argument("image", metavar="IMAGE", help="a photo of one face")
     p.add_argument("--landmarks", metavar="PTS", help="iBUG .pts/.ljson (68) or face-mesh .npy/.json "
                                                       "(478) (default: detect, see --landmark-detector)")
     add_detector_arguments(p)
     add_model_argument(p)
     p.add_argument("--renderer", choices=("gar", "classical"), default="gar",
-                   help="the renderer inverted: gar (the neural plugin's generator) or classical "
+                   help="the renderer inverted: gar (the neural plugin's generator: $MORPHABLE_GAR_WEIGHTS, "
+                        "default neural/gar/weights/gar_tiny.pt) or classical "
                         "(Lambertian, uniform albedo, spherical-harmonics light) (default gar)")
     p.add_argument("--steps", type=int, default=100, help="refinement Adam steps (default 100)")
     add_loss_weight_argument(p)
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
-                                                    "(default: neural/gar/weights/inverter_tiny.pt if present)")
+                                                    "(default: the one beside the generator's weights, "
+                                                    "e.g. inverter_tiny.pt beside gar_tiny.pt, else "
+                                                    "neural/gar/weights/inverter_tiny.pt)")
     p.add_argument("--yaw", type=float, help="new yaw, degrees (default: the recovered one)")
     p.add_argument("--pitch", type=float, help="new pitch, degrees (default: the recovered one)")
     p.add_argument("--roll", type=float, help="new roll, degrees (default: the recovered one)")

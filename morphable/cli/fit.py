@@ -60,19 +60,24 @@ def add_parser(sub):
     p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
                    help="how --overlay draws the mesh (default shaded)")
     p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
-                   help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
+                   help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2) "
+                        "(default: the whole image)")
     p.add_argument("--overlay-mask", action="store_true",
                    help="tint red on --overlay the face pixels the photometric mask weighs "
                         "under 0.5 (needs --refine)")
     p.add_argument("--refine", choices=("photometric", "classical", "gar"),
                    help="then fit the pixels, all frames with one identity (needs torch, the "
                         "neural extra): photometric (albedo texture and light in closed form, "
-                        "docs/photometric.md; classical is the same) or gar (the neural "
-                        "renderer: generator weights, see neural/gar/README.md)")
+                        "docs/photometric.md; classical is the same) or gar (the neural renderer: "
+                        "the generator of $MORPHABLE_GAR_WEIGHTS, default the synthetic "
+                        "neural/gar/weights/gar_tiny.pt; see neural/gar/README.md) (default: no "
+                        "refinement)")
     p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
     add_loss_weight_argument(p, what="--refine")
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
-                                                    "(default: neural/gar/weights/inverter_tiny.pt if present)")
+                                                    "(default: the one beside the generator's weights, "
+                                                    "e.g. inverter_tiny.pt beside gar_tiny.pt, else "
+                                                    "neural/gar/weights/inverter_tiny.pt)")
     p.add_argument("--refine-render", metavar="PNG",
                    help="output .png: the face crop next to the refined render (first image)")
     return p

@@ -23,7 +23,8 @@ def add_parser(sub):
     p.add_argument("--out", required=True, help="output folder (items/<id>/fit.obj, fit.json, results.jsonl)")
     add_model_argument(p)
     p.add_argument("--workers", type=int, default=1, help="parallel processes or Dask workers (default 1)")
-    p.add_argument("--scheduler", help="'local' (a Dask LocalCluster) or a Dask scheduler tcp://host:port")
+    p.add_argument("--scheduler", help="'local' (a Dask LocalCluster) or a Dask scheduler tcp://host:port "
+                                          "(default: a local process pool)")
     add_fitting_arguments(p)
     p.add_argument("--independent", action="store_true",
                    help="fit the frames of a subject each on their own")

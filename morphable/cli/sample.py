@@ -8,7 +8,7 @@ def add_parser(sub):
     add_model_argument(p)
     p.add_argument("--identity-std", type=float, default=1.0,
                    help="std of the random identity coefficients (0 = mean face; default 1)")
-    p.add_argument("--expression", action="append", metavar="NAME=W", help="expression weight (repeatable)")
+    p.add_argument("--expression", action="append", metavar="NAME=W", help="expression weight (repeatable; default: neutral)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--out", required=True, help="output mesh (.obj with UVs, .ply, .stl)")
     return p

@@ -118,7 +118,7 @@ def inverter_loss(V, G, normals, z, noise="zero"):
     z_hat, v_feats = V(image)
     lz = (pixel_norm(z_hat) - pixel_norm(z)).pow(2).mean()
     lf = sum((g - v).pow(2).mean() for g, v in zip(g_feats, v_feats))
-    return lz + lf, {"z": float(lz.detach()), "features": float(lf.detach())}
+    return lz + lf, {"z": lz.detach(), "features": lf.detach()}
 
 
 def save_inverter(V, path, **meta) -> Path:

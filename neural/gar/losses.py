@@ -131,7 +131,8 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
 
     Returns
     -------
-    total : scalar tensor; terms : dict of the detached scalar terms; fake : (B, 3, R, R)
+    total : scalar tensor; terms : dict of the detached 0-d tensor terms (left on the device:
+    reading them waits for it); fake : (B, 3, R, R)
     ``G(normals_a, z1)`` (detached), for the discriminator step.
     """
     lam = {**DEFAULT_LAMBDAS, **(lambdas or {})}
@@ -165,4 +166,4 @@ def generator_losses(G, D, aux: dict, normals_a: torch.Tensor, normals_b: torch.
         terms["adv"] = generator_adversarial_loss(
             D(img_a1 if augment is None else augment(img_a1)).float())
     total = total_loss(terms, lam)
-    return total, {k: float(v.detach()) for k, v in terms.items()}, img_a1.detach()
+    return total, {k: v.detach() for k, v in terms.items()}, img_a1.detach()

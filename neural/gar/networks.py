@@ -269,8 +269,11 @@ class Generator(nn.Module):
 
     def make_noise(self, batch: int, generator: torch.Generator | None = None) -> list:
         """Per-layer noise maps eps: a list of (batch, 1, r, r) tensors, two per block."""
-        # drawn on the CPU so that a CPU generator gives the same maps on any device
-        return [torch.randn(batch, 1, r, r, generator=generator).to(self.input.device)
+        from ..training import to_device
+
+        # drawn on the CPU so that a CPU generator gives the same maps on any device; copied
+        # without making the host wait for the GPU (pinned memory, asynchronous)
+        return [to_device(torch.randn(batch, 1, r, r, generator=generator), self.input.device)
                 for r in self.config.resolutions for _ in range(RenderBlock.n_noises)]
 
     def synthesis(self, normals: torch.Tensor, w: torch.Tensor, noise=None) -> torch.Tensor:

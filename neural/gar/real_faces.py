@@ -260,15 +260,22 @@ def flip_faces(image, normals, mask, landmarks):
     (N, R, R) masks, (N, 68, 2) px landmarks (x -> R - 1 - x, mirrored labels); numpy
     arrays or torch tensors (new ones, the inputs are not changed)."""
     R = image.shape[2]
+    mirror = MIRROR
     if isinstance(image, np.ndarray):
         def flip(a):
             return a[:, :, ::-1].copy()
     else:
+        import torch
+
+        from ..training import to_device
+
         def flip(a):
             return a.flip(2)
+        # the label order copied to the tensors' device without a wait
+        mirror = to_device(torch.as_tensor(MIRROR), landmarks.device)
     n = flip(normals)
     n[..., 0] *= -1
-    lm = landmarks[:, MIRROR]
+    lm = landmarks[:, mirror]
     lm[..., 0] = R - 1 - lm[..., 0]
     return flip(image), n, flip(mask), lm
 
@@ -353,28 +360,36 @@ class RealFaces:
 
     def batch(self, index, flipped=None) -> dict:
         """The crops ``index`` (B,) as torch tensors on ``device`` (``image`` in [-1, 1]),
-        mirrored where ``flipped`` (B,) bool is True."""
+        mirrored where ``flipped`` (B,) bool is True; ``identity_id`` (B,) stays a CPU
+        tensor (the trainer picks other people's photos by it on the host)."""
         import torch
 
+        from ..training import to_device
+
+        # the host's choices reach the device without making the host wait (to_device)
         t = self.tensors
-        index = torch.as_tensor(np.asarray(index), device=self.device)
+        host = np.asarray(index)
+        index = to_device(torch.as_tensor(host), self.device)
         img, n, m, lm, pose = (t[k][index] for k in ("image", "normals", "mask", "landmarks",
                                                      "pose"))
         if flipped is not None:
             f = np.asarray(flipped, bool)
             if f.any():
-                ft = torch.as_tensor(f, device=self.device)
-                img[ft], n[ft], m[ft], lm[ft] = flip_faces(img[ft], n[ft], m[ft], lm[ft])
+                # every crop mirrored, then chosen per crop: a boolean index would make the
+                # host wait for the device (it needs the count)
+                ft = to_device(torch.as_tensor(f), self.device)
+                img, n, m, lm = (torch.where(ft.reshape(-1, *[1] * (a.dim() - 1)), b, a)
+                                 for a, b in zip((img, n, m, lm), flip_faces(img, n, m, lm)))
             # a mirror image turns yaw and roll the other way
-            sign = torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1), dtype=pose.dtype,
-                                   device=self.device)
+            sign = to_device(torch.as_tensor(np.where(f[:, None], [-1, 1, -1], 1),
+                                             dtype=pose.dtype), self.device)
             pose = pose * sign
         return {"image": img.permute(0, 3, 1, 2).float() / 127.5 - 1,
                 "normals": n.permute(0, 3, 1, 2).contiguous(),
                 "mask": m[:, None].float(),
                 "landmarks": lm.float(),
                 "pose": pose.float(),
-                "identity_id": t["person"][index]}
+                "identity_id": torch.as_tensor(self.arrays["person"][host])}
 
     def sample(self, batch_size: int, rng=None, pair: bool = False) -> dict:
         """``batch_size`` random crops (with replacement) as the dict of

@@ -18,6 +18,10 @@ checkpoint and ends with the same weights as an uninterrupted run.
 Outputs in ``--out``: ``checkpoint.pt``, ``generator.pt`` (config, G_ema and D weights),
 ``samples/step-XXXXXX.png`` (rows: a normal map then ``G`` under fixed latents),
 ``log.jsonl`` (one JSON line per step: losses, seconds).
+
+``--init WEIGHTS``: a new run starts from a ``generator.pt`` (G_ema's weights for G and
+G_ema, D's), with fresh Adam states under a linear learning-rate warm-up of ``--init-warmup``
+steps: one GPU run continues the last one's committed GAR (docs/gpu_runs.md).
 """
 from __future__ import annotations
 
@@ -41,7 +45,7 @@ from .paths import default_aux_path
 from .config import GARConfig, get_config
 from .networks import Discriminator, Generator
 from .losses import discriminator_loss, generator_losses, r1_penalty
-from ..training import AMP_DTYPES, TrainingRun, cpu_state, parse_set
+from ..training import AMP_DTYPES, TrainingRun, cpu_state, parse_set, step_generator
 
 __all__ = ["Trainer", "main", "normal_to_rgb", "save_grid", "landmark_index"]
 
@@ -123,6 +127,8 @@ class Trainer(TrainingRun):
         train split's fits, D's real images other photos of it (held on ``device``)
     amp : ``"bf16"`` for bfloat16 autocast of every forward pass, None for float32
     channels_last : networks and images in channels-last memory format
+    sync_every : steps between reads of the loss terms (:class:`neural.training.TrainingRun`)
+    compile : compile G and D (:meth:`neural.training.TrainingRun.compiled`)
     """
 
     WEIGHTS_FILE = "generator.pt"
@@ -130,7 +136,7 @@ class Trainer(TrainingRun):
 
     def __init__(self, config: GARConfig, out, aux=None, aux_dir=None, images=None,
                  aligned=False, workers: int = 0, device="cpu", data=None, amp=None,
-                 channels_last: bool = False):
+                 channels_last: bool = False, sync_every=None, compile: bool = False):
         from .data import AlignedImageFolder
         from ..faces.renders import SyntheticFaces
         from .real_faces import RealFaces
@@ -140,7 +146,8 @@ class Trainer(TrainingRun):
                              "pass one")
         if data is not None and workers:
             raise InputError("--data batches are drawn on the device; drop --workers")
-        super().__init__(out, device=device, amp=amp, channels_last=channels_last)
+        super().__init__(out, device=device, amp=amp, channels_last=channels_last,
+                         sync_every=sync_every, compile=compile)
         real = None if data is None else RealFaces(data, "train", device=self.device,
                                                    resolution=config.resolution)
         policy = config.augment
@@ -155,6 +162,7 @@ class Trainer(TrainingRun):
         self.G = self.layout(Generator(config))
         self.D = self.layout(Discriminator(config))
         self.G_ema = copy.deepcopy(self.G).eval().requires_grad_(False)
+        self.compiled(self.G), self.compiled(self.D)
         self.opt_g = torch.optim.Adam(self.G.parameters(), lr=config.g_lr, betas=config.betas)
         # lazy R1: scale the D optimiser's momentum as StyleGAN2 does
         c = config.r1_every / (config.r1_every + 1)
@@ -172,6 +180,7 @@ class Trainer(TrainingRun):
             self.images = AlignedImageFolder(images, config.resolution, aligned=aligned,
                                              model=config.model)
         self.workers = workers
+        self.init = None       # the weights a run started from (--init): path, images, warm-up
         self.landmark_index = torch.as_tensor(
             landmark_index(config, self.aux["L"], real=real is not None), device=self.device)
 
@@ -179,26 +188,61 @@ class Trainer(TrainingRun):
     def state_dict(self) -> dict:
         return {"config": self.config.to_dict(), "step": self.step, "G": self.G.state_dict(),
                 "D": self.D.state_dict(), "G_ema": self.G_ema.state_dict(),
-                "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict()}
+                "opt_g": self.opt_g.state_dict(), "opt_d": self.opt_d.state_dict(),
+                "init": self.init}
 
     def weights(self) -> dict:
-        """What ``generator.pt`` holds: the config, the step, G_ema (with its mapping network
-        M) as ``"G"`` and the discriminator ``"D"`` (to fine-tune or continue adversarially),
-        as CPU tensors."""
+        """What ``generator.pt`` holds: the config, the step, ``images_seen`` (since the first
+        run of an ``--init`` chain), ``init`` (the weights this run started from, or None),
+        G_ema (with its mapping network M) as ``"G"`` and the discriminator ``"D"`` (to
+        fine-tune or continue adversarially), as CPU tensors."""
+        before = self.init["images_seen"] if self.init else 0
         return {"config": self.config.to_dict(), "step": self.step,
+                "images_seen": before + self.step * self.config.batch_size, "init": self.init,
                 "G": cpu_state(self.G_ema), "D": cpu_state(self.D)}
 
-    def load_state(self, ckpt: dict, path) -> None:
+    def _same_architecture(self, ckpt: dict, path, advice: str) -> None:
         saved = GARConfig.from_dict(ckpt["config"])
         arch = ("resolution", "z_dim", "w_dim", "mapping_layers", "channel_base", "channel_max",
                 "nim_background")
         k = next((k for k in arch if getattr(saved, k) != getattr(self.config, k)), None)
         if k is not None:
             raise InputError(f"{path}: checkpoint of a different architecture ({k} "
-                             f"{getattr(saved, k)}, not {getattr(self.config, k)}); use another "
-                             f"--out folder, or --set {k}={json.dumps(getattr(saved, k))}")
+                             f"{getattr(saved, k)}, not {getattr(self.config, k)}); {advice}"
+                             f"--set {k}={json.dumps(getattr(saved, k))}")
+
+    def load_state(self, ckpt: dict, path) -> None:
+        self._same_architecture(ckpt, path, "use another --out folder, or ")
         for key in ("G", "D", "G_ema", "opt_g", "opt_d"):
             getattr(self, key).load_state_dict(ckpt[key])
+        self.init = ckpt.get("init")
+
+    def init_from(self, path, warmup: int = 100) -> dict:
+        """Start this (new) run from ``path``, a ``generator.pt``: G and G_ema from its G_ema,
+        D from its D; fresh Adam states, the learning rates ramped up linearly over the first
+        ``warmup`` steps -> ``self.init`` (path, images seen before, warm-up)."""
+        path = Path(path)
+        try:
+            ckpt = torch.load(path, map_location=self.device, weights_only=True)
+            self._same_architecture(ckpt, path, "")
+            for net, key in ((self.G, "G"), (self.G_ema, "G"), (self.D, "D")):
+                net.load_state_dict(ckpt[key])
+        except (OSError, RuntimeError, EOFError, KeyError, TypeError) as e:
+            raise InputError(f"{path}: cannot read GAR weights ({str(e).splitlines()[0]})") from None
+        cfg = GARConfig.from_dict(ckpt["config"])
+        images = ckpt.get("images_seen", int(ckpt.get("step", 0)) * cfg.batch_size)
+        self.init = {"path": str(path), "images_seen": int(images), "warmup": int(warmup)}
+        return self.init
+
+    def _warm_up(self) -> None:
+        """The learning rates of a run started by :meth:`init_from`: a linear ramp over its
+        warm-up steps (the fresh Adam moments are noisy), then the config's."""
+        if not self.init:
+            return
+        ramp = min(1.0, (self.step + 1) / max(self.init["warmup"], 1))
+        c = self.config.r1_every / (self.config.r1_every + 1)
+        self.opt_g.param_groups[0]["lr"] = self.config.g_lr * ramp
+        self.opt_d.param_groups[0]["lr"] = self.config.d_lr * c * ramp
 
     def batches(self, start: int):
         """Batches of steps ``start, start + 1, ...`` (``workers`` processes render them)."""
@@ -209,14 +253,14 @@ class Trainer(TrainingRun):
     # --- one step -----------------------------------------------------------------------
     def real_images(self, batch, gen=None) -> torch.Tensor:
         """(B, 3, R, R) real images for the discriminator in this step (``gen``: the step's
-        CPU generator, used by the --images draws)."""
+        generator, :func:`neural.training.step_generator`, used by the --images draws)."""
         B = batch["image"].shape[0]
         if self.real is not None:
             # independent draws (with flips) of the pack's photos of other people than
             # those whose normal maps G got in this step, so D never sees G's own photo
             rng = np.random.default_rng([self.config.seed, self.step, 1])
             person = self.real.arrays["person"]
-            allowed = np.flatnonzero(~np.isin(person, batch["identity_id"].cpu().numpy()))
+            allowed = np.flatnonzero(~np.isin(person, batch["identity_id"].numpy()))
             if not len(allowed):
                 raise InputError(f"{self.real.path}: every train photo's person is in one "
                                  f"batch of {B}; use a smaller --batch-size")
@@ -224,27 +268,30 @@ class Trainer(TrainingRun):
             return self.real.batch(index, rng.random(B) < 0.5)["image"]
         if self.images is None:
             return batch["image"]
-        idx = torch.randint(len(self.images), (B,), generator=gen)
-        return torch.stack([self.images[int(i)] for i in idx]).to(self.device)
+        idx = torch.randint(len(self.images), (B,), generator=gen, device=gen.device).tolist()
+        return torch.stack([self.images[i] for i in idx]).to(self.device)
 
     def _augment(self):
         """The step's DiffAugment (None when off), its draws seeded by (seed, step)."""
         if not self.config.augment:
             return None
         seed = int(np.random.SeedSequence([self.config.seed, self.step, 2]).generate_state(1)[0])
-        gen = torch.Generator().manual_seed(seed)
+        gen = step_generator(seed, self.device)
         return lambda images: diff_augment(images, self.config.augment, gen)
 
     def train_step(self, batch) -> dict:
         cfg, dev = self.config, self.device
-        batch = {k: self.layout(v) for k, v in batch.items()}
-        gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + self.step)
+        # identity_id stays on the host: real_images reads it there, with no wait
+        batch = {k: v if k == "identity_id" else self.layout(v) for k, v in batch.items()}
+        # drawn where they are used: a CPU draw copied to a GPU would make the host wait
+        gen = step_generator(cfg.seed * 1_000_003 + self.step, dev)
         torch.manual_seed(cfg.seed * 1_000_003 + self.step)   # the per-layer noise
         B = batch["normals"].shape[0]
-        z1 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
-        z2 = torch.randn(B, cfg.z_dim, generator=gen).to(dev)
+        z1 = torch.randn(B, cfg.z_dim, generator=gen, device=dev)
+        z2 = torch.randn(B, cfg.z_dim, generator=gen, device=dev)
         augment = self._augment()
 
+        self._warm_up()
         # generator; the contrastive terms lazily, every contrastive_every steps, weighted
         # by the interval
         k = cfg.contrastive_every
@@ -277,7 +324,7 @@ class Trainer(TrainingRun):
         if r1_step:
             r1 = r1_penalty(real, real_logits)
             loss = loss + cfg.r1_gamma / 2 * r1 * cfg.r1_every
-            terms["r1"] = float(r1.detach())
+            terms["r1"] = r1.detach()
         self.opt_d.zero_grad(set_to_none=True)
         loss.backward()
         self.opt_d.step()
@@ -286,13 +333,14 @@ class Trainer(TrainingRun):
         # ema_rampup = 0.05) so that short runs do not sit at the initial weights
         half_life = min(10_000, 0.05 * (self.step + 1) * B)
         beta = 0.5 ** (B / half_life)
+        # one multi-tensor kernel per list instead of one per parameter (launch-bound on a GPU)
         with torch.no_grad():
-            for pe, p in zip(self.G_ema.parameters(), self.G.parameters()):
-                pe.lerp_(p, 1 - beta)
+            torch._foreach_lerp_(list(self.G_ema.parameters()), list(self.G.parameters()),
+                                 1 - beta)
             for be, b in zip(self.G_ema.buffers(), self.G.buffers()):
                 be.copy_(b)
-        terms.update(g_total=float(total.detach()), d=float(d_loss.detach()))
-        self.finite_or_raise(terms)
+        # 0-d tensors, read every sync_every steps by the loop (no per-step wait on a GPU)
+        terms.update(g_total=total.detach(), d=d_loss.detach())
         self.step += 1
         return terms
 
@@ -332,8 +380,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--images", help="folder of face photos for the discriminator (FFHQ-style)")
     p.add_argument("--aligned", action="store_true", help="--images are already aligned")
     p.add_argument("--no-resume", action="store_true", help="fail if --out has a checkpoint")
+    p.add_argument("--init", metavar="WEIGHTS", help="a new run starts from this generator.pt "
+                   "(fresh optimisers, learning-rate warm-up)")
+    p.add_argument("--init-warmup", type=int, default=100, metavar="STEPS",
+                   help="warm-up steps after --init")
     p.add_argument("--workers", type=int, default=0, help="data-loading processes")
     p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--compile", action="store_true", help="torch.compile G and D (GPU)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cuda")
     p.add_argument("--max-minutes", type=float, help="stop (with a checkpoint) after this time")
     p.add_argument("--checkpoint-minutes", type=float, metavar="M",
@@ -369,11 +422,15 @@ def main(argv=None) -> int:
             aux = {n: load_aux(n, pretrained=False, width=cfg.aux_width) for n in NAMES}
         trainer = Trainer(cfg, args.out, aux=aux, aux_dir=args.aux_dir, images=args.images,
                           aligned=args.aligned, workers=args.workers, device=args.device,
-                          data=args.data, amp=args.amp, channels_last=args.channels_last)
+                          data=args.data, amp=args.amp, channels_last=args.channels_last,
+                          compile=args.compile)
         if trainer.checkpoint_path.exists():
             if args.no_resume:
                 raise InputError(f"{trainer.checkpoint_path}: exists (drop --no-resume to resume)")
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
+        elif args.init:
+            log.info("starting from %s (%d images seen)", args.init,
+                     trainer.init_from(args.init, args.init_warmup)["images_seen"])
         trainer.fit(progress=not args.quiet, max_minutes=args.max_minutes,
                     max_steps=args.max_steps, checkpoint_minutes=args.checkpoint_minutes)
         log.info("done: step %d, weights in %s", trainer.step, trainer.out / "generator.pt")

@@ -136,7 +136,7 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
     G's resolution is area-downsampled); then the metrics also hold ``real``
     (:func:`evaluate_real` on the held-out photos, ``eval_steps`` optimiser steps). ``device``: where V trains (G is moved
     there); the returned V is on the CPU, and the draws are the same on any device."""
-    from ..training import device_from
+    from ..training import device_from, read_terms, to_device
 
     cfg = G.config
     device = device_from(device)
@@ -164,17 +164,19 @@ def train(G, *, steps: int = 500, batch_size: int = 8, lr: float = 1e-3, pool: i
 
         bar = tqdm(bar, desc="inverter", file=sys.stderr)
     for step in bar:
-        idx = torch.randint(len(train_n), (batch_size,), generator=rng).to(device)
-        z = torch.randn(batch_size, cfg.z_dim, generator=rng).to(device)
+        # CPU draws (the same on any device), copied without a wait for the GPU
+        idx = to_device(torch.randint(len(train_n), (batch_size,), generator=rng), device)
+        z = to_device(torch.randn(batch_size, cfg.z_dim, generator=rng), device)
         noise = G.make_noise(batch_size, generator=rng)
         loss, parts = inverter_loss(V, G, train_n[idx], z, noise)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        history.append({"step": step, **parts})
+        history.append({"step": step, **parts})      # 0-d tensors: read once, at the end
         if max_minutes and time.perf_counter() - t0 > 60 * max_minutes:
             log.info("time budget reached after %d steps", step + 1)
             break
+    history = read_terms(history)
     V.eval().requires_grad_(False)
     calibrate(V, G, train_n[:held_out])
     metrics = evaluate_inverter(V, G, test_n)
@@ -216,7 +218,7 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     from .renderer import GARRenderer
-    from ..training import device_from
+    from ..training import device_from, read_terms, to_device
 
     device_from(args.device)             # a one-line error before any loading
 

@@ -10,8 +10,12 @@ drawn for training.
 
 :func:`draw_batch` crops them as a detector's box would (jittered scale and centre, in-plane
 rotation, mirror with the rows swapped, :data:`neural.landmarks.network` crop geometry), adds
-crops away from the face (score 0), and jitters colour. All of it is torch on the CPU,
-seeded by (seed, step): a resumed run draws the same batches.
+crops away from the face (score 0), and jitters colour, seeded by (seed, step): a resumed run
+draws the same batches. The per-face draws (boxes, angles, colour factors) and the label
+geometry are small and made on the CPU; the crops are cut where the pack's images are
+(:meth:`LandmarkSource.to`: on a GPU, decoded once and kept there), with the pixel noise
+drawn there too, so that a batch moves only labels and a few numbers to the device, without
+making the host wait.
 """
 from __future__ import annotations
 
@@ -25,6 +29,7 @@ from morphable.errors import InputError
 
 from .cropping import crop_theta, image_to_crop
 from .network import crop_images
+from ..training import step_generator, to_device
 from ..faces.points import box_side, face_box, mirror_index
 
 __all__ = ["LandmarkSource", "load_source", "draw_batch", "validation_batch", "negative_crops",
@@ -53,6 +58,12 @@ class LandmarkSource:
 
     def __len__(self) -> int:
         return len(self.images)
+
+    def to(self, device) -> "LandmarkSource":
+        """This source with its images (uint8) on ``device``; the labels stay on the CPU,
+        where the crops' geometry is worked out."""
+        return LandmarkSource(self.kind, self.path, self.images.to(device), self.points,
+                              self.weight, self.boxes, self.yaw)
 
     def subset(self, index) -> "LandmarkSource":
         index = np.asarray(index)
@@ -112,21 +123,29 @@ def _uniform(gen, n, lo, hi):
 
 def _colour_jitter(x: torch.Tensor, gen) -> torch.Tensor:
     """x (B, 3, R, R) in [-1, 1] -> brightness, contrast, saturation, gamma, grey and noise
-    jittered per image."""
+    jittered per image. The per-image factors come from ``gen`` (CPU); the pixel noise from
+    ``gen`` too on the CPU, from a generator of x's device seeded by ``gen`` elsewhere."""
     B = len(x)
-    y = (x + 1) / 2
-    gamma = torch.exp(_uniform(gen, B, -0.35, 0.35))[:, None, None, None]
-    y = y.clamp_min(0) ** gamma
+
+    def col(v):
+        return to_device(v, x.device).reshape(B, -1, 1, 1)
+
+    gamma = torch.exp(_uniform(gen, B, -0.35, 0.35))
+    sat = _uniform(gen, B, 0.3, 1.5)
+    sat = torch.where(torch.rand(B, generator=gen) < 0.1, torch.zeros_like(sat), sat)
+    contrast, brightness = _uniform(gen, B, 0.6, 1.4), _uniform(gen, B, 0.6, 1.4)
+    cast = torch.exp(0.1 * torch.randn(B, 3, generator=gen))
+    noise = _uniform(gen, B, 0, 0.04)
+    pixel_gen = gen if x.device.type == "cpu" else step_generator(
+        int(torch.randint(2 ** 62, (1,), generator=gen)), x.device)
+    y = ((x + 1) / 2).clamp_min(0) ** col(gamma)
     grey = y.mean(1, keepdim=True)
-    sat = _uniform(gen, B, 0.3, 1.5)[:, None, None, None]
-    sat = torch.where(torch.rand(B, 1, 1, 1, generator=gen) < 0.1, torch.zeros_like(sat), sat)
-    y = grey + (y - grey) * sat
+    y = grey + (y - grey) * col(sat)
     mean = y.mean((1, 2, 3), keepdim=True)
-    y = mean + (y - mean) * _uniform(gen, B, 0.6, 1.4)[:, None, None, None]
-    y = y * _uniform(gen, B, 0.6, 1.4)[:, None, None, None]
-    y = y * torch.exp(0.1 * torch.randn(B, 3, 1, 1, generator=gen))    # colour cast
-    noise = _uniform(gen, B, 0, 0.04)[:, None, None, None]
-    y = y + noise * torch.randn(y.shape, generator=gen)
+    y = mean + (y - mean) * col(contrast)
+    y = y * col(brightness)
+    y = y * col(cast)
+    y = y + col(noise) * torch.randn(y.shape, generator=pixel_gen, device=x.device)
     return (y.clamp(0, 1) * 2 - 1)
 
 
@@ -134,7 +153,8 @@ def _crops(source: LandmarkSource, index, config, gen, negative, jitter: bool):
     """Crops of ``source`` faces ``index`` -> (x (b, 3, R, R), q (b, P, 2), w (b, P))."""
     R = config.resolution
     b = len(index)
-    img = source.images[index].permute(0, 3, 1, 2).float() / 127.5 - 1
+    images = source.images
+    img = images[to_device(index, images.device)].permute(0, 3, 1, 2).float() / 127.5 - 1
     H, W = img.shape[-2:]
     box = source.boxes[index].clone()
     c = (box[:, :2] + box[:, 2:]) / 2
@@ -153,11 +173,11 @@ def _crops(source: LandmarkSource, index, config, gen, negative, jitter: bool):
         s = torch.where(negative, s * torch.exp(_uniform(gen, b, -0.5, 0.5)), s)
     boxes = torch.cat([c - s[:, None] / 2, c + s[:, None] / 2], 1)
     theta = crop_theta(boxes, (W, H), angle, flip)
-    x = crop_images(img, theta, R)
+    x = crop_images(img, to_device(torch.as_tensor(theta, dtype=torch.float32), images.device), R)
     q = torch.as_tensor(image_to_crop(np.nan_to_num(source.points[index].numpy()), theta, (W, H)),
                         dtype=torch.float32)
     w = source.weight[index].clone()
-    if flip is not None and bool(flip.any()):
+    if flip is not None:      # always: a no-op where nothing is mirrored, and no read of flip
         m = torch.as_tensor(mirror_index())
         q = torch.where(flip[:, None, None], q[:, m], q)
         w = torch.where(flip[:, None], w[:, m], w)
@@ -171,8 +191,9 @@ def draw_batch(sources: dict, config, step: int) -> dict:
     sources : kind -> LandmarkSource (kinds without faces are skipped)
     config : :class:`neural.landmarks.network.LandmarkConfig`
 
-    Returns dict of ``image`` (B, 3, R, R) in [-1, 1], ``points`` (B, 546, 2)
-    crop-normalised, ``weight`` (B, 546), ``face`` (B,) 1.0 face / 0.0 negative."""
+    Returns dict of ``image`` (B, 3, R, R) in [-1, 1] on the sources' images' device,
+    ``points`` (B, 546, 2) crop-normalised, ``weight`` (B, 546), ``face`` (B,) 1.0 face /
+    0.0 negative (on that device too)."""
     gen = torch.Generator().manual_seed(int(np.random.SeedSequence([config.seed, step])
                                             .generate_state(1)[0]))
     mix = [(k, f) for k, f in config.mix if f > 0 and k in sources and len(sources[k])]
@@ -192,7 +213,8 @@ def draw_batch(sources: dict, config, step: int) -> dict:
         x, q, w = _crops(src, index, config, gen, negative, jitter=True)
         xs.append(x), qs.append(q), ws.append(w), faces.append((~negative).float())
     x = _colour_jitter(torch.cat(xs), gen)
-    return {"image": x, "points": torch.cat(qs), "weight": torch.cat(ws), "face": torch.cat(faces)}
+    return {"image": x, **{k: to_device(torch.cat(v), x.device) for k, v in
+                           (("points", qs), ("weight", ws), ("face", faces))}}
 
 
 def validation_batch(source: LandmarkSource, config, n: int = 256, seed: int = 0) -> dict:

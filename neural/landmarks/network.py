@@ -31,7 +31,7 @@ from torch import nn
 
 from ..faces.points import N_POINTS
 
-__all__ = ["LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_images", "points_in_crop_px",
+__all__ = ["ARCHES", "LandmarkConfig", "LandmarkNet", "gaussian_nll", "crop_images", "points_in_crop_px",
            "save_landmark_net", "load_landmark_net"]
 
 
@@ -115,6 +115,19 @@ class LandmarkConfig:
         if "mix" in d:
             d["mix"] = tuple((str(a), float(b)) for a, b in d["mix"])
         return cls(**d)
+
+
+ARCHES = {
+    "small": {},
+    "wide": {"resolution": 160, "widths": (16, 32, 64, 128, 160), "blocks": (0, 1, 2, 2, 1),
+             "hidden": 384},
+}
+"""Named network sizes (:class:`LandmarkConfig` fields; ``--arch`` of
+:mod:`neural.landmarks.train`): ``small`` is the config's default (128 px, 2.62 M
+parameters, the CPU recipe's); ``wide`` is sized for a GPU run: 160 px, more channels and
+residual blocks, 3.67 M parameters, 14.7 MB of weights, about 7 ms per face on one CPU
+thread where ``small`` takes about 3 ms (docs/gpu_runs.md: the command and the load). A
+weights file holds its config, so the detector loads either."""
 
 
 def _conv(cin, cout, stride=1):

@@ -14,7 +14,15 @@ Recipes (explicit options win):
   background and rerun the same command to resume (bf16 autocast is 3x slower than float32
   on CPUs without native bf16, e.g. this project's AMD EPYC machines: docs/landmark_net.md);
 - ``gpu``: ``--device cuda``, bf16, channels-last, batch 256 (learning rate × 2), at most 8
-  minutes, a checkpoint every minute.
+  minutes, a checkpoint every minute; the packs' images decoded once onto the GPU, the crops
+  cut and jittered there (:mod:`neural.landmarks.data`), the losses read every
+  :data:`neural.training.SYNC_EVERY_DEVICE` steps.
+
+``--arch small|wide``: the network's size (:data:`neural.landmarks.network.ARCHES`; ``--set``
+wins over it). ``--init WEIGHTS``: a new run (no checkpoint in ``--out``) starts from those
+weights (``landmarks.pt`` or a ``checkpoint.pt`` of the same size), with a fresh optimiser
+and the warm-up of its first steps: one GPU run continues the last one's committed network
+(docs/gpu_runs.md); the weights' ``meta`` counts the images seen since the first run.
 
 Outputs in ``--out``: ``checkpoint.pt`` (network, optimiser, step), ``landmarks.pt`` (what
 :func:`neural.landmarks.network.load_landmark_net` reads: config, ``meta`` with the packs,
@@ -33,7 +41,6 @@ import json
 import logging
 import math
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -45,7 +52,7 @@ from morphable.errors import InputError, MorphableError
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .data import LandmarkSource, draw_batch, load_source, validation_batch
-from .network import LandmarkConfig, LandmarkNet, gaussian_nll, points_in_crop_px
+from .network import ARCHES, LandmarkConfig, LandmarkNet, gaussian_nll, points_in_crop_px
 from ..faces.points import IBUG_ROWS
 from ..training import AMP_DTYPES, TrainingRun, cpu_state, parse_set
 
@@ -74,21 +81,25 @@ class LandmarkTrainer(TrainingRun):
     sources : dict kind -> :class:`neural.landmarks.data.LandmarkSource` (training faces)
     validation : dict name -> LandmarkSource (held-out faces; reports and sample pictures)
     packs : dict kind -> list of pack descriptions for the weights' ``meta``
-    device, amp, channels_last : as :class:`neural.training.TrainingRun`
+    device, amp, channels_last, sync_every, compile : as :class:`neural.training.TrainingRun`
     """
 
     WEIGHTS_FILE = "landmarks.pt"
     REPORT_KEYS = ("nll", "score", "err_px", "sigma_px", "lr")
 
     def __init__(self, config: LandmarkConfig, out, sources: dict, validation=None, packs=None,
-                 device="cpu", amp=None, channels_last: bool = False):
-        super().__init__(out, device=device, amp=amp, channels_last=channels_last)
+                 device="cpu", amp=None, channels_last: bool = False, sync_every=None,
+                 compile: bool = False):
+        super().__init__(out, device=device, amp=amp, channels_last=channels_last,
+                         sync_every=sync_every, compile=compile)
         self.config = config
         self.sources = sources
         self.validation = {name: validation_batch(src, config)
                            for name, src in (validation or {}).items() if len(src)}
         self.packs = packs or {}
-        self.train_seconds = 0.0
+        self.init = None       # the weights a run started from (--init): path, images seen
+        # decoded once where the network trains: the crops are cut there, no image travels
+        sources = self.sources = {k: s.to(self.device) for k, s in sources.items()}
         torch.manual_seed(config.seed)
         self.net = self.layout(LandmarkNet(config))
         first = draw_batch(sources, replace(config, negatives=0.0, seed=config.seed + 1), 0)
@@ -96,11 +107,14 @@ class LandmarkTrainer(TrainingRun):
         self.net.set_mean_points((first["points"] * w).sum(0) / w.sum(0).clamp_min(1))
         self.opt = torch.optim.AdamW(self.net.parameters(), lr=config.lr,
                                      weight_decay=config.weight_decay)
+        self.compiled(self.net)
 
     # --- checkpoints --------------------------------------------------------------------
     def meta(self) -> dict:
+        before = self.init["images_seen"] if self.init else 0
         return {"packs": self.packs, "step": self.step,
-                "images_seen": self.step * self.config.batch_size,
+                "images_seen": before + self.step * self.config.batch_size,
+                "init": self.init,
                 "train_seconds": round(self.train_seconds, 1),
                 "device": str(self.device), "amp": bool(self.amp_dtype),
                 "research_only": any(p.get("research_only", False)
@@ -108,18 +122,40 @@ class LandmarkTrainer(TrainingRun):
 
     def state_dict(self) -> dict:
         return {"config": self.config.to_dict(), "net": self.net.state_dict(),
-                "opt": self.opt.state_dict(), "train_seconds": self.train_seconds}
+                "opt": self.opt.state_dict(), "train_seconds": self.train_seconds,
+                "init": self.init}
 
     def load_state(self, ckpt: dict, path) -> None:
+        self._same_network(ckpt, path, "use another --out folder")
+        self.net.load_state_dict(ckpt["net"])
+        self.opt.load_state_dict(ckpt["opt"])
+        self.train_seconds = float(ckpt.get("train_seconds", 0.0))
+        self.init = ckpt.get("init")
+
+    def _same_network(self, ckpt: dict, path, advice: str) -> None:
         saved = LandmarkConfig.from_dict(ckpt["config"])
         k = next((k for k in _ARCH if getattr(saved, k) != getattr(self.config, k)), None)
         if k is not None:
             raise InputError(f"{path}: checkpoint of a different network ({k} "
-                             f"{getattr(saved, k)}, not {getattr(self.config, k)}); use "
-                             "another --out folder")
-        self.net.load_state_dict(ckpt["net"])
-        self.opt.load_state_dict(ckpt["opt"])
-        self.train_seconds = float(ckpt.get("train_seconds", 0.0))
+                             f"{getattr(saved, k)}, not {getattr(self.config, k)}); {advice}")
+
+    def init_from(self, path) -> dict:
+        """Start this (new) run from the network of ``path`` (a weights file or a checkpoint
+        of the same size): its weights, not its optimiser (AdamW's moments start again,
+        under the warm-up of steps 0 .. ``config.warmup``) -> ``self.init``."""
+        path = Path(path)
+        try:
+            ckpt = torch.load(path, map_location=self.device, weights_only=True)
+            state = ckpt["state"] if "state" in ckpt else ckpt["net"]
+        except (OSError, RuntimeError, EOFError, KeyError, TypeError) as e:
+            raise InputError(f"{path}: cannot read landmark weights "
+                             f"({str(e).splitlines()[0]})") from None
+        self._same_network(ckpt, path, "give --arch or --set to match it")
+        self.net.load_state_dict(state)
+        meta = ckpt.get("meta") or {}
+        images = meta.get("images_seen", int(ckpt.get("step", 0)) * int(ckpt["config"]["batch_size"]))
+        self.init = {"path": str(path), "images_seen": int(images)}
+        return self.init
 
     def weights(self) -> dict:
         return {"config": self.config.to_dict(), "meta": self.meta(), "state": cpu_state(self.net)}
@@ -139,7 +175,7 @@ class LandmarkTrainer(TrainingRun):
         return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * t)))
 
     def losses(self, batch: dict) -> tuple:
-        """(total loss tensor, dict of float terms) of a batch."""
+        """(total loss tensor, dict of 0-d tensor terms) of a batch."""
         half = self.config.resolution / 2
         x = self.layout(batch["image"])
         with self.autocast():
@@ -149,13 +185,13 @@ class LandmarkTrainer(TrainingRun):
         score = F.binary_cross_entropy_with_logits(out["score"], batch["face"].to(self.device))
         with torch.no_grad():
             d = ((out["points"] - q) * half).norm(dim=-1)
-            err = float((d * w).sum() / w.sum().clamp_min(1))
-            sig = float((out["log_sigma"].exp() * w).sum() / w.sum().clamp_min(1))
-        return nll + score, {"nll": float(nll.detach()), "score": float(score.detach()), "err_px": err,
+            err = (d * w).sum() / w.sum().clamp_min(1)
+            sig = (out["log_sigma"].exp() * w).sum() / w.sum().clamp_min(1)
+        # 0-d tensors, read every sync_every steps by the loop (no per-step wait on a GPU)
+        return nll + score, {"nll": nll.detach(), "score": score.detach(), "err_px": err,
                              "sigma_px": sig}
 
     def train_step(self, batch) -> dict:
-        t0 = time.perf_counter()
         self.net.train()
         lr = self.lr_at(self.step)
         for group in self.opt.param_groups:
@@ -166,9 +202,7 @@ class LandmarkTrainer(TrainingRun):
         torch.nn.utils.clip_grad_norm_(self.net.parameters(), 10.0)
         self.opt.step()
         terms["lr"] = lr
-        self.finite_or_raise(terms)
         self.step += 1
-        self.train_seconds += time.perf_counter() - t0
         return terms
 
     # --- held-out sets ------------------------------------------------------------------
@@ -315,6 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hold-out", type=int, default=256,
                    help="faces at the end of the first synthetic pack kept for validation")
     p.add_argument("--recipe", choices=sorted(RECIPES), default="cpu")
+    p.add_argument("--arch", choices=sorted(ARCHES), default="small",
+                   help="network size (neural.landmarks.network.ARCHES; --set wins)")
+    p.add_argument("--init", metavar="WEIGHTS", help="a new run starts from these weights "
+                   "(landmarks.pt or checkpoint.pt; fresh optimiser, warm-up)")
     p.add_argument("--steps", type=int, help="total steps (the cosine schedule's length)")
     p.add_argument("--batch-size", type=int)
     p.add_argument("--seed", type=int)
@@ -324,6 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amp", choices=sorted(AMP_DTYPES))
     p.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=None)
     p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--compile", action="store_true", help="torch.compile the network (GPU)")
     p.add_argument("--max-minutes", type=float)
     p.add_argument("--checkpoint-minutes", type=float)
     p.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after N steps of this run")
@@ -334,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from(args) -> tuple:
     """The config and the run options of ``args`` with the recipe's defaults filled in."""
     recipe = dict(RECIPES[args.recipe])
-    overrides = parse_set(args.set)
+    overrides = {**ARCHES[args.arch], **parse_set(args.set)}
     for key in ("steps", "batch_size", "seed"):
         if getattr(args, key) is not None:
             overrides[key] = getattr(args, key)
@@ -360,9 +399,13 @@ def main(argv=None) -> int:
         sources, validation, packs = load_sources(args.synthetic, args.annotated, args.profiled,
                                                   args.hold_out)
         trainer = LandmarkTrainer(cfg, args.out, sources, validation, packs, device=run["device"],
-                                  amp=run["amp"], channels_last=bool(run["channels_last"]))
+                                  amp=run["amp"], channels_last=bool(run["channels_last"]),
+                                  compile=args.compile)
         if trainer.checkpoint_path.exists():
             log.info("resuming from %s at step %d", trainer.checkpoint_path, trainer.load())
+        elif args.init:
+            log.info("starting from %s (%d images seen)", args.init,
+                     trainer.init_from(args.init)["images_seen"])
         trainer.fit(progress=not args.quiet, max_minutes=run["max_minutes"],
                     max_steps=args.max_steps, checkpoint_minutes=run["checkpoint_minutes"])
         log.info("done: step %d, weights in %s", trainer.step, trainer.out / trainer.WEIGHTS_FILE)
