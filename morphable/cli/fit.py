@@ -196,7 +196,8 @@ def _write_all_faces(args, results) -> int:
         for k, result in enumerate(results):
             written += result.write(mesh=_numbered(args.out_mesh, k), report=_numbered(args.report, k),
                                     texture=_numbered(args.out_texture, k), texture_size=args.texture_size,
-                                    refine_render=_numbered(args.refine_render, k))
+                                    refine_render=_numbered(args.refine_render, k), mesh_kind=args.mesh,
+                                    albedo=args.texture_source == "albedo")
         if args.overlay:
             from PIL import Image
 
