@@ -25,7 +25,7 @@ from morphable.refinement import parse_loss_weights
 from ..scans import UNITS, load_scan, photo_colors
 from ..videos import CONDITIONS
 from .methods import METHODS
-from .protocol import (format_table, run_model_scans, run_protocol, run_videos, save_error_maps,
+from .protocol import (RENDERERS, format_table, run_model_scans, run_protocol, run_videos, save_error_maps,
                        save_heatmap)
 
 __all__ = ["main"]
@@ -67,6 +67,10 @@ def _parser():
                    help="landmarks detected on rendered frames (--landmark-detector, --face-detector) "
                         "instead of projected scan landmarks")
     add_detector_arguments(p)
+    p.add_argument("--renderer", choices=RENDERERS, default="raster",
+                   help="how synthetic frames are rendered (--detect, gar): raster (morphable."
+                        "raster, the shading our fitters assume) or pbr (evaluation.pbr: "
+                        "physically based, photo backgrounds, defocus, noise, JPEG)")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
     p.add_argument("--videos", nargs="+", metavar="COND=PATH",
                    help="real videos, one per condition (e.g. indoor=clip.mp4): --frames frames "
@@ -208,7 +212,8 @@ def main(argv=None) -> int:
         check_plot_path(args.plot)
     common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
                   icp_scale=args.icp_scale, landmark_scale=not args.rigid,
-                  log=logging.getLogger("evaluation.florence").info, progress=not args.quiet)
+                  log=logging.getLogger("evaluation.florence").info, progress=not args.quiet,
+                  renderer=args.renderer)
     with logging_redirect_tqdm():
         if args.synthetic_scan:
             errors = []
