@@ -103,6 +103,7 @@ def test_deterministic_per_frame(subject, video, frames):
 
     again = render_frames(subject, video, frames=[3], seed=5)
     np.testing.assert_array_equal(again[0], frames[1])       # frame 3 alone, the same
+    assert np.abs(frames[0] - frames[1]).mean() > 0.01        # another pose, another frame
     other = render_frames(subject, video, frames=[3], seed=6)
     assert np.abs(other[0] - frames[1]).mean() > 0.01
 

@@ -100,7 +100,7 @@ class _Scene:
         import pyvista as pv
 
         W, H = size
-        self.size, self.ss = (int(W), int(H)), int(supersample)
+        self.size, self.ss, self.shots = (int(W), int(H)), int(supersample), 0
         self.plotter = pv.Plotter(off_screen=True, window_size=(W * self.ss, H * self.ss), lighting=None)
         mesh = _mesh(scan)
         kw = dict(pbr=True, roughness=look.roughness, metallic=look.metallic, smooth_shading=True)
@@ -160,6 +160,11 @@ class _Scene:
         cx, cy = camera.principal
         vc.SetWindowCenter(-2.0 * (cx - (W - 1) / 2.0) / W, 2.0 * (cy - (H - 1) / 2.0) / H)
         vc.clipping_range = (max(depth - 400.0, 1.0), depth + 400.0)
+        if self.shots:
+            # pyvista's screenshot renders on its first call only: later ones would return
+            # the first frame again
+            self.plotter.render_window.Render()
+        self.shots += 1
         img = self.plotter.screenshot(return_img=True, transparent_background=True)
         img = np.asarray(img, dtype=np.float64)[:H * self.ss, :W * self.ss] / 255.0
         return img.reshape(H, self.ss, W, self.ss, 4).mean((1, 3))
@@ -175,21 +180,28 @@ def _frontal_rotation(cameras) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
-def _environment(background) -> np.ndarray:
-    """A background crop as an equirectangular environment: the crop and its mirror side by
-    side (a 2:1 panorama without a seam), (h, 2h, 3)."""
-    return np.concatenate([background, background[:, ::-1]], 1)
+def _environment(background, height: int = 64) -> np.ndarray:
+    """A background crop as an equirectangular environment of ``height`` rows: the crop and
+    its mirror side by side (a 2:1 panorama without a seam), (height, 2 height, 3). Small:
+    the image-based light is low-pass filtered anyway, and VTK's filtering of it is the
+    costliest step of a frame in software OpenGL."""
+    from PIL import Image
+
+    small = Image.fromarray(np.round(np.clip(background, 0, 1) * 255).astype(np.uint8))
+    half = np.asarray(small.resize((height, height), Image.BILINEAR), dtype=np.float64) / 255.0
+    return np.concatenate([half, half[:, ::-1]], 1)
 
 
-def _shade(scan, camera, look: Look, rotation, background, supersample: int) -> np.ndarray:
+def _shade(scan, cameras, look: Look, rotation, background, supersample: int):
     """The scan under ``look`` (lights in the frame of ``rotation``, the image-based light
-    from ``background``) seen by ``camera`` -> (H, W, 4) float in [0, 1]. A fresh scene each
-    time: VTK carries state from one render to the next, and a frame must depend on its
-    camera and seed only."""
-    scene = _Scene(scan, camera.image_size, supersample, look)
+    from ``background``) seen by each of ``cameras`` -> yields (H, W, 4) float in [0, 1]
+    images, one scene for them all (VTK compiles its shaders and filters the environment
+    once: seconds in software OpenGL)."""
+    scene = _Scene(scan, cameras[0].image_size, supersample, look)
     try:
         scene.light(look, rotation, _environment(background))
-        return scene.shoot(camera)
+        for camera in cameras:
+            yield scene.shoot(camera)
     finally:
         scene.close()
 
@@ -214,7 +226,7 @@ def render_view(scan, camera, condition: str = "cooperative", seed: int = 0,
     look = LOOKS[CONDITIONS[condition].light]
     rng = np.random.default_rng([seed, list(CONDITIONS).index(condition)])
     background = background_crop(camera.image_size, rng, photos)
-    rgba = _shade(scan, camera, look, camera.rotation, background, supersample)
+    rgba, = _shade(scan, [camera], look, camera.rotation, background, supersample)
     return develop(rgba, background, SENSORS[condition], rng)
 
 
@@ -242,10 +254,10 @@ def render_frames(scan, video, frames=None, seed: int = 0, supersample: int = 2,
     look = LOOKS[CONDITIONS[video.condition].light]
     frames = video.sampled if frames is None else np.asarray(frames)
     background = background_crop(video.image_size, np.random.default_rng([seed, cond]), photos)
-    rotation = _frontal_rotation(video.cameras)
+    cameras = [video.cameras[i] for i in frames]
     out = []
-    for i in frames:
-        rgba = _shade(scan, video.cameras[i], look, rotation, background, supersample)
+    for i, rgba in zip(frames, _shade(scan, cameras, look, _frontal_rotation(video.cameras),
+                                      background, supersample)):
         rng = np.random.default_rng([seed, cond, int(i)])
         out.append(develop(rgba, background, SENSORS[video.condition], rng) / 255.0)
     return np.stack(out)
