@@ -14,8 +14,8 @@ report, and the wall time of the whole command).
 
 Command (one row set per refinement)::
 
-    python -m evaluation.bench_photometric --refine none --report reports/james_photos_none.json
-    python -m evaluation.bench_photometric --refine photometric --report reports/james_photos_photometric.json
+    python -m evaluation.bench_scan_photos --refine none --report reports/james_photos_none.json
+    python -m evaluation.bench_scan_photos --refine photometric --report reports/james_photos_photometric.json
 
 ``--fit-args`` passes further options to ``morphable fit`` (e.g. a refinement's settings).
 james is held out: settings are not to be chosen on this bench.
@@ -142,9 +142,9 @@ def format_rows(rows) -> str:
     return "\n".join(lines)
 
 
-@one_line_errors("evaluation.bench_photometric")
+@one_line_errors("evaluation.bench_scan_photos")
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m evaluation.bench_photometric",
+    p = argparse.ArgumentParser(prog="python -m evaluation.bench_scan_photos",
                                 description=__doc__.split("\n")[0])
     p.add_argument("--refine", default="none",
                    help="none, or a --refine choice of morphable fit (classical, gar, photometric...)")
@@ -163,7 +163,7 @@ def main(argv=None) -> int:
     if args.report:
         from morphable.io.atomic import atomic_path
 
-        command = "python -m evaluation.bench_photometric " + shlex.join(
+        command = "python -m evaluation.bench_scan_photos " + shlex.join(
             sys.argv[1:] if argv is None else argv)
         with atomic_path(args.report) as tmp:
             Path(tmp).write_text(json.dumps({"command": command, "rows": rows}, indent=1))
