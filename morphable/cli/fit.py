@@ -8,8 +8,12 @@ Landmarks come from ``--landmarks`` (iBUG ``.pts`` or menpo ``.ljson`` 68 points
 face-mesh points in ``.npy``/``.json``, one file per image) or are detected
 (``--landmark-detector``, ``--face-detector``; then fitted with a detector's error,
 ``DETECTED_MODEL_STD_MM``). Writes
-the mesh (OBJ with UVs; with several images the shared identity without expression), a JSON
+the mesh (OBJ with UVs; the identity without expression, or ``--mesh expressive``), a JSON
 report, a texture and overlays, all only once the fit has succeeded, and all or none.
+
+``--refine photometric`` then fits the pictures' pixels (docs/photometric.md): one identity
+for all frames, an albedo texture and each frame's light in closed form, a robust mask;
+``--mesh`` chooses what the mesh holds (the same rule for one picture and for several).
 
 The command line of :func:`morphable.pipeline.fit_images` and :meth:`ImageFit.write
 <morphable.pipeline.ImageFit.write>`.
@@ -17,6 +21,7 @@ The command line of :func:`morphable.pipeline.fit_images` and :meth:`ImageFit.wr
 from __future__ import annotations
 
 from ..errors import InputError
+from ..pipeline.outputs import MESH_KINDS
 from .common import (add_fitting_arguments, add_loss_weight_argument, add_model_argument, model_from,
                      renderer_options)
 
@@ -36,10 +41,15 @@ def add_parser(sub):
     p.add_argument("--independent", action="store_true",
                    help="fit each image on its own; the mesh is the average identity")
     p.add_argument("--out-mesh", help="output mesh (.obj with UVs, .ply, .stl)")
+    p.add_argument("--mesh", choices=MESH_KINDS, default="neutral",
+                   help="what --out-mesh holds, for one image and for several alike: neutral (the "
+                        "default: the identity without expression) or expressive (each frame's "
+                        "face with its expression; several frames: NAME_0.obj, NAME_1.obj, ...)")
     p.add_argument("--report", help="output JSON report")
     p.add_argument("--out-texture", metavar="PNG",
-                   help="output .png: the UV texture from the photos (the model needs UVs); an "
-                        ".obj --out-mesh then names it through an .mtl beside it")
+                   help="output .png: the UV texture from the photos, or with --refine "
+                        "photometric the recovered albedo (the model needs UVs); an .obj "
+                        "--out-mesh then names it through an .mtl beside it")
     p.add_argument("--texture-size", type=int, default=512, help="texels per side (default 512)")
     p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "
                                      "(several images: NAME_0.png, NAME_1.png, ...)")
@@ -47,9 +57,14 @@ def add_parser(sub):
                    help="how --overlay draws the mesh (default shaded)")
     p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
                    help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
-    p.add_argument("--refine", choices=("classical", "gar"),
-                   help="then refine by inverting a renderer (needs the neural extra; "
-                        "gar: generator weights, see neural/gar/README.md)")
+    p.add_argument("--overlay-mask", action="store_true",
+                   help="tint red on --overlay the face pixels the photometric mask leaves out "
+                        "(needs --refine)")
+    p.add_argument("--refine", choices=("photometric", "classical", "gar"),
+                   help="then fit the pixels, all frames with one identity (needs torch, the "
+                        "neural extra): photometric (albedo texture and light in closed form, "
+                        "docs/photometric.md; classical is the same) or gar (the neural "
+                        "renderer: generator weights, see neural/gar/README.md)")
     p.add_argument("--steps", type=int, default=100, help="--refine Adam steps (default 100)")
     add_loss_weight_argument(p, what="--refine")
     p.add_argument("--inverter", metavar="PT", help="gar: inverter V weights for the latent "
@@ -83,6 +98,11 @@ def run(args):
         raise InputError(f"--steps must be >= 0, got {args.steps}")
     if args.refine_render and not args.refine:
         raise InputError("--refine-render needs --refine")
+    if args.overlay_mask and not (args.refine and args.overlay):
+        raise InputError("--overlay-mask needs --refine and --overlay")
+    if args.refine in ("photometric", "classical") and model.uv is None:
+        raise InputError(f"{args.model}: the model has no UV coordinates, so --refine "
+                         f"{args.refine} cannot hold an albedo texture")
     if args.loss_weight and not args.refine:
         raise InputError("--loss-weight needs --refine")
     weights = parse_loss_weights(args.loss_weight, "--loss-weight")
@@ -99,11 +119,18 @@ def run(args):
     result.write(mesh=args.out_mesh, report=args.report, texture=args.out_texture, overlay=args.overlay,
                  texture_size=args.texture_size,
                  overlay_style=None if args.overlay_style == "none" else args.overlay_style,
-                 overlay_crop=args.overlay_crop, refine_render=args.refine_render)
+                 overlay_crop=args.overlay_crop, refine_render=args.refine_render,
+                 mesh_kind=args.mesh, overlay_mask=args.overlay_mask)
     report, res = result.report, result.fit
     for picture, run in zip(result.pictures, report.get("refine", [])):
+        if run["fallback"]:
+            print(f"{picture.label}: refine {args.refine}: the mask keeps {100 * run['mask_coverage']:.1f} % "
+                  "of the face; kept the landmark fit")
+            continue
         print(f"{picture.label}: refine {args.refine}: photometric loss {run['photometric_loss'][0]:.4f} -> "
-              f"{run['photometric_loss'][-1]:.4f} in {run['runtime_s']:.1f} s")
+              f"{run['photometric_loss'][-1]:.4f}, residual {run['photometric_residual']:.3f}, "
+              f"mask {100 * run['mask_coverage']:.0f} % of the face; {run['runtime_s']:.1f} s "
+              f"for {run['frames_together']} frame(s)")
     for f in report.get("frames_skipped", []):
         print(f"{f['image']} ({f['time_s']:.3f} s): skipped, {f['reason']}")
     for f in report["frames"]:

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from .inputs import Picture, check_landmarks, detect_points, pictures, read_landmark_file
+from .outputs import check_mesh_kind
 
 __all__ = ["fit_images", "ImageFit", "one_landmark_set"]
 
@@ -48,10 +49,15 @@ class ImageFit:
         """(V, 3) float32, mm: the fitted mesh of ``frame`` (its identity and expression)."""
         return self.fit.vertices(frame)
 
-    def mesh_vertices(self) -> np.ndarray:
-        """(V, 3) float32, mm: the mesh :meth:`write` writes: the fitted frame's for one
-        picture, the shared (or average) identity without expression for several."""
-        return self.vertices(0) if self.n_frames == 1 else self.fit.neutral_vertices()
+    def mesh_vertices(self, kind: str = "neutral"):
+        """The mesh :meth:`write` writes, the same rule for one picture and for several:
+        ``kind`` "neutral" (default): (V, 3) float32 mm, the shared (or average) identity
+        without expression; "expressive": a list of N (V, 3), each frame's face with its
+        expression (in the model frame, without pose)."""
+        check_mesh_kind(kind)
+        if kind == "expressive":
+            return [self.vertices(i) for i in range(self.n_frames)]
+        return self.fit.neutral_vertices()
 
     def images(self) -> list:
         """The N frames' pictures as the texture and overlays take them: photo paths (read
@@ -60,21 +66,25 @@ class ImageFit:
 
     def write(self, mesh=None, report=None, texture=None, overlay=None, *, texture_size: int = 512,
               overlay_style: str | None = "shaded", overlay_crop: float | None = None,
-              refine_render=None) -> list:
+              refine_render=None, mesh_kind: str = "neutral", overlay_mask: bool = False,
+              albedo: bool = True) -> list:
         """Write the fit's files, all or nothing: every output's folder is checked first, each
         file is written atomically, and when one fails those already written are removed.
 
         Parameters
         ----------
         mesh : path, optional
-            The mesh (:meth:`mesh_vertices`; .obj with UVs, .ply, .stl, .off, .glb); with a
-            texture an .obj names it through a material library ``NAME.mtl`` beside it.
+            The mesh (:meth:`mesh_vertices` of ``mesh_kind``: "neutral", the identity without
+            expression, or "expressive", each frame's face, ``NAME_0.obj``, ``NAME_1.obj``, ...
+            for several frames; .obj with UVs, .ply, .stl, .off, .glb); with a texture an .obj
+            names it through a material library ``NAME.mtl`` beside it.
         report : path, optional
             The JSON report: :attr:`report`, plus ``overlays`` (the paths written) and
             ``texture`` (its path, size, fractions observed and mirrored, runtime).
         texture : path, optional
-            A .png UV texture from the pictures (:func:`morphable.texture.extract_texture`,
-            ``texture_size`` texels per side; the model needs UVs).
+            A .png UV texture (the model needs UVs), ``texture_size`` texels per side: for a
+            fit refined photometrically (with ``albedo``) the recovered albedo texture, else
+            the pictures' colours (:func:`morphable.texture.extract_texture`).
         overlay : path, optional
             .png/.jpg: each picture with the fitted mesh (``overlay_style``: "shaded",
             "wireframe" or None for landmarks only) and the landmarks
@@ -82,6 +92,9 @@ class ImageFit:
             by that fraction of its size); several frames: ``NAME_0.png``, ``NAME_1.png``, ...
         refine_render : path, optional
             .png: the first frame's face crop next to its refined render (a refined fit only).
+        overlay_mask : bool
+            Paint the photometric mask on the overlays (a refined fit only): the face pixels
+            the mask leaves out tinted red.
 
         Returns
         -------
@@ -91,7 +104,8 @@ class ImageFit:
 
         return write_outputs(self, mesh, report, texture, overlay, texture_size=texture_size,
                              overlay_style=overlay_style, overlay_crop=overlay_crop,
-                             refine_render=refine_render)
+                             refine_render=refine_render, mesh_kind=mesh_kind,
+                             overlay_mask=overlay_mask, albedo=albedo)
 
 
 def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None,
@@ -117,8 +131,9 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
         always detected (their entry must be None).
     model : MorphableModel or name/path for :func:`morphable.load_model`
     refine : None, or the name of a refinement after the landmark fit
-        (:func:`~morphable.pipeline.refine.refine_fit`: a renderer's name, "classical" or
-        "gar", inverts that renderer on each frame; needs the neural extra)
+        (:func:`~morphable.pipeline.refine.refine_fit`, all frames together with one identity:
+        "photometric" (= "classical"), the albedo texture and light in closed form, or "gar";
+        needs torch, the neural extra)
     refine_options : dict, keywords of the refinement (e.g. ``{"steps": 100}``)
     camera, focal_px, n_iterations, robust : see :func:`morphable.fitting.fit_landmarks`
     shared_identity : bool, one identity for all pictures (False: each fitted on its own)
