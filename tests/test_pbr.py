@@ -133,3 +133,19 @@ def test_cli_renderer_choice_bad():
     with pytest.raises(SystemExit) as e:
         main(["--synthetic-scan", "ict", "--renderer", "povray", "--report", "x.json"])
     assert e.value.code == 2
+
+
+def test_photometric_method_on_pbr_frames(subject, sfm):
+    """ours-photometric runs on physically based frames: every frame refined (no fallback),
+    its mask covering part of the face, and the mesh moved from the landmark fit's."""
+    from evaluation.florence.protocol import run_protocol
+
+    report, maps = run_protocol(subject, sfm, ["ours", "ours-photometric"], ["outdoor"],
+                                n_sampled=2, n_frames=4, renderer="pbr",
+                                efforts={"ours-photometric": {"steps": 3}})
+    cell = report["methods"]["ours-photometric"]["outdoor"]
+    assert report["settings"]["renderer"] == "pbr" and report["videos"]["outdoor"]["renderer"] == "pbr"
+    assert np.isfinite(cell["mean_mm"]) and not any(cell["fallback"])
+    assert all(0.05 < c <= 1.0 for c in cell["mask_coverage"])
+    ours, photometric = (m.vertices for m in maps)
+    assert np.abs(ours - photometric).max() > 1e-3

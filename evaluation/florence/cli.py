@@ -91,6 +91,11 @@ def _parser():
     p.add_argument("--expression-weight", type=float,
                    help="ours: weight of the expression prior (default 1: the fitter's, "
                         "morphable.fitting.noise.expression_precision)")
+    p.add_argument("--photometric-steps", type=int,
+                   help="ours-photometric(-gar): refinement Adam steps (default 100)")
+    p.add_argument("--photometric-resolution", type=int,
+                   help="ours-photometric(-gar): face crop size, px (default the refinement's)")
+    add_loss_weight_argument(p, "--photometric-loss-weight", "ours-photometric(-gar): refinement")
     p.add_argument("--gar-steps", type=int,
                    help="gar: refinement steps per frame (default 100)")
     p.add_argument("--gar-region", choices=("crop", "face"),
@@ -197,6 +202,17 @@ def main(argv=None) -> int:
         for path in videos.values():     # not a video, no frames: before any fit
             probe(path)
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
+    photometric = {k: v for k, v in (("steps", args.photometric_steps),
+                                     ("resolution", args.photometric_resolution)) if v is not None}
+    if any(v < 1 for v in photometric.values()):
+        raise InputError(f"--photometric-steps/--photometric-resolution: must be at least 1, "
+                         f"got {photometric}")
+    if args.photometric_loss_weight:
+        photometric["weights"] = parse_loss_weights(args.photometric_loss_weight,
+                                                    "--photometric-loss-weight")
+    if ours or photometric:
+        efforts.update({m: {**ours, **photometric}
+                        for m in ("ours-photometric", "ours-photometric-gar")})
     if args.gar_steps is not None:
         if args.gar_steps < 1:
             raise InputError(f"--gar-steps {args.gar_steps}: must be at least 1")
