@@ -170,7 +170,7 @@ class ClassicalRenderer(RendererBase):
         flat = tex[0].reshape(S * S, 3)
         base = appearance["albedo"]
         fill = base.mean((2, 3)) if base.dim() == 4 else base
-        amap = fill.reshape(1, 3, 1).expand(1, 3, R * R).clone()
+        amap = fill.to(flat.dtype).reshape(1, 3, 1).expand(1, 3, R * R).clone()
         amap[0][:, torch.as_tensor(view.pixels)] = flat[torch.as_tensor(texel_index(view.uv, S))].T
         return {**appearance, "albedo": amap.reshape(1, 3, R, R)}
 

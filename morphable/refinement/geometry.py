@@ -64,14 +64,14 @@ class PixelView:
 
     resolution : R, the crop's side (px); pixels : (N,) int, flat indices into the R x R crop
     of the pixels at least half covered by the face; normals : (N, 3) camera-frame unit
-    normals; uv : (N, 2) the UV of the surface point each sees, or None (model without UVs);
+    normals (None where only the pixels and UVs matter: ``view_appearance``); uv : (N, 2) the UV of the surface point each sees, or None (model without UVs);
     target : (N, 3) the crop's colours in [0, 1] and weight : (N,) their robust mask weight
     (None outside a fit); model : the MorphableModel.
     """
 
     resolution: int
     pixels: np.ndarray
-    normals: np.ndarray
+    normals: np.ndarray | None
     uv: np.ndarray | None
     target: np.ndarray | None
     weight: np.ndarray | None
@@ -92,16 +92,17 @@ def surface_uv(model, vis) -> np.ndarray | None:
 
 
 def pixel_view(model, vis, normal_map, uv_map, target=None, weight=None) -> PixelView:
-    """The :class:`PixelView` of a crop: ``vis`` its visibility, ``normal_map`` (R, R, 3) and
-    ``uv_map`` (R, R, 2) or None (:func:`surface_uv`) numpy, ``target`` (R, R, 3) and
-    ``weight`` (R, R) numpy or None."""
-    R = normal_map.shape[0]
+    """The :class:`PixelView` of a crop: ``vis`` its visibility, ``normal_map`` (R, R, 3) or
+    None (then the view's ``normals`` are None) and ``uv_map`` (R, R, 2) or None
+    (:func:`surface_uv`) numpy, ``target`` (R, R, 3) and ``weight`` (R, R) numpy or None."""
+    R = vis.image_shape[0]
     pixels = np.flatnonzero(vis.coverage().reshape(-1) > 0.5)
 
     def at(a, c):
         return None if a is None else np.asarray(a).reshape(R * R, c)[pixels]
     n = at(normal_map, 3)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    if n is not None:
+        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     w = at(weight, 1)
     return PixelView(R, pixels, n, at(uv_map, 2), at(target, 3), None if w is None else w[:, 0],
                      model)

@@ -181,14 +181,14 @@ def refine_shared(images, fit, renderer="classical", *, frames=None, steps: int 
     losses = [loss_function(state.problem_getter(i), u, i, renderer, w[i], feat_fn)
               for i in range(len(frames))]
     state.start(losses)
-    for i in np.flatnonzero(~state.active):
-        log.warning("%s: the photometric mask keeps %.1f %% of the face (under %.0f %%); the "
-                    "frame keeps its landmark fit", names[i], 100 * state.coverage[i],
-                    100 * MIN_COVERAGE)
     if not state.active.any():
         raise InputError(f"{', '.join(names)}: the photometric mask keeps under "
                          f"{100 * MIN_COVERAGE:.0f} % of the face (a black, saturated or "
                          "occluded face); nothing to fit photometrically")
+    for i in np.flatnonzero(~state.active):
+        log.warning("%s: the photometric mask keeps %.1f %% of the face (under %.0f %%); the "
+                    "frame keeps its landmark fit", names[i], 100 * state.coverage[i],
+                    100 * MIN_COVERAGE)
     run = optimise(state, losses, w, int(steps), fit.model.expression_kind == "blendshapes",
                    int(recast_every), trace_every, t0)
     new_fit, states = map_back(state.problems, u, renderer, run.rendered, state.active,
@@ -294,10 +294,9 @@ class _LoopState:
         self.stage["visibility"] += time.perf_counter() - t
         return self
 
-    def follow_views(self, losses):
+    def follow_views(self):
         """The appearance of each fitted frame on its re-cast pixels."""
-        normals = [n for _, n in self._renders(losses)]
-        views = self._views(normals)
+        views = self._views([None] * len(self.problems))
         for i in np.flatnonzero(self.active):
             self.u.appearances[i] = self.renderer.view_appearance(self.u.appearances[i], views[i])
 
@@ -356,10 +355,9 @@ def optimise(state, losses, weights, steps: int, blendshapes: bool, recast_every
         state.stage["geometry"] += time.perf_counter() - t
         if step + 1 == steps:
             continue
-        recast = recast_every > 0 and (step + 1) % recast_every == 0
-        if recast:
-            state.recast().follow_views(losses)
-        if recast or (step + 1) % SOLVE_EVERY == 0:
+        if recast_every > 0 and (step + 1) % recast_every == 0:
+            state.recast().follow_views()
+        if (step + 1) % SOLVE_EVERY == 0:
             state.solve(losses)
     with torch.no_grad():
         total = w_alpha * u.alpha.pow(2).sum()

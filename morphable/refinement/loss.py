@@ -122,10 +122,17 @@ def loss_function(problem, unknowns, frame: int, renderer, weights: dict, featur
     or None. ``problem`` is a callable giving the frame's current problem (it is re-cast).
 
     A ``pixelwise`` renderer without perceptual features, on a crop of one sample per pixel,
-    renders only the face pixels, as a (1, 3, 1, N) strip with its (N, 3) normals (per-pixel
-    appearance maps (1, C, R, R) gathered alike): the same loss at a third of the cost. With
-    ``full=True``, or otherwise, the whole crop: (1, 3, R, R) and (R, R, 3)."""
+    is compared on the surface points the face pixels saw at the last cast, as a (1, 3, 1, N)
+    strip with their (N, 3) normals (per-pixel appearance maps (1, C, R, R) gathered alike):
+    each point is projected with the current shape and pose and the crop sampled there
+    (bilinear), so that the photometric term pulls the points' positions by the image's
+    gradients as well as their normals by the shading, at a third of a full render's cost.
+    With ``full=True``, or otherwise, the whole crop: (1, 3, R, R) and (R, R, 3), each pixel
+    against the surface point it saw at the last cast."""
     import torch
+    import torch.nn.functional as F
+
+    from ..raster import interpolate
 
     from ..raster import normal_map
     from ..raster.normal_maps import sample_normals
@@ -146,17 +153,23 @@ def loss_function(problem, unknowns, frame: int, renderer, weights: dict, featur
         Rt = u.rotation(i)
         pixelwise = (getattr(renderer, "pixelwise", False) and not features and not full
                      and p.vis.supersample == 1)
+        region = mask * renderer.photometric_mask(p.coverage)
         if pixelwise:
             idx = torch.as_tensor(p.vis.pixels)
             n = sample_normals(verts, model.triangles, p.vis, rotation=Rt, foreground=True)
             app = {k: strip(v, idx) for k, v in u.appearances[i].items()}
             img = renderer.render(n.T[None, :, None, :], app)
-            target, m = strip(p.image, idx), strip(mask, idx)
+            xy = project_points(p.camera, interpolate(p.vis, verts, foreground=True), Rt,
+                                u.translation(i))
+            grid = ((xy + 0.5) * (2.0 / R) - 1.0).to(p.image.dtype)[None, None]
+            target = F.grid_sample(p.image, grid, mode="bilinear", padding_mode="border",
+                                   align_corners=False)
+            m = strip(region, idx)
         else:
             n = normal_map(verts, model.triangles, vis=p.vis, rotation=Rt)      # (R, R, 3)
             img = renderer.render(n.permute(2, 0, 1)[None], u.appearances[i])
-            target, m = p.image, mask
-        photo = ((img - target).pow(2) * m).sum() / (3 * mask.sum()).clamp_min(1e-6)
+            target, m = p.image, region
+        photo = ((img - target).pow(2) * m).sum() / (3 * m.sum()).clamp_min(1e-6)
         terms = {"photo": photo}
         if features:
             terms["feat"] = sum((a - b).pow(2).mean() for a, b in zip(features(img), target_feats))
