@@ -31,7 +31,7 @@ The pixel views these two hooks take describe one frame's crop: ``resolution`` R
 (N,) flat indices into the R x R crop of the face pixels, their camera-frame unit ``normals``
 (N, 3), image colours ``target`` (N, 3) in [0, 1], robust mask ``weight`` (N,) in [0, 1], UV
 coordinates ``uv`` (N, 2) of the surface point each sees (None for a model without UVs) and
-the ``model`` (:class:`morphable.refinement.problem.PixelView`).
+the ``model`` (:class:`morphable.refinement.geometry.PixelView`).
 """
 from __future__ import annotations
 

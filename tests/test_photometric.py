@@ -221,6 +221,11 @@ def test_cli_writes_the_albedo_and_the_mask(data_dir, tmp_path):
     assert 0.05 < run["mask_coverage"] <= 1 and run["photometric_residual"] < 0.2
     assert set(run["stage_s"]) == {"set_up", "appearance", "mask", "visibility", "geometry"}
     assert Image.open(overlay).size == Image.open(img).size
+    # on request the photos' colours instead (shading included)
+    assert main(["fit", str(img), "--landmarks", str(pts), "--refine", "photometric", "--steps", "1",
+                 "--out-texture", str(tex), "--texture-size", "64", "--texture-source", "photo",
+                 "--report", str(report)]) == 0
+    assert json.loads(report.read_text())["texture"]["kind"] == "photo"
 
 
 @pytest.mark.parametrize("kind", ["black", "saturated"])
@@ -284,3 +289,19 @@ def test_grey_and_tiny_faces_stay_finite(face, dtype):
                                fitted_landmarks=fit.fitted_landmarks * 0 + 96.0)
     with pytest.raises(InputError, match="px wide|landmarks are missing"):
         refine(image.astype(dtype), tiny, "classical", steps=1)
+
+
+def test_a_frame_the_mask_leaves_empty_keeps_its_landmark_fit(face, sfm, caplog):
+    image, fit, alpha, cam = face
+    lm = np.asarray(fit.landmarks[0])
+    two = fit_landmarks(sfm, np.stack([lm, lm]), np.array([[192.0, 192.0]] * 2), n_iterations=3)
+    black = np.zeros_like(image)
+    with caplog.at_level("WARNING", logger="morphable.refinement"):
+        new, reports, _ = refine_shared([image, black], two, "classical", steps=6, resolution=128)
+    assert [r["fallback"] for r in reports] == [False, True]
+    assert reports[1]["mask_coverage"] < 0.05 and "keeps its landmark fit" in caplog.text
+    # its expression and pose stay the landmark fit's; the shared identity is the refined one
+    np.testing.assert_array_equal(new.expression[1], two.expression[1])
+    np.testing.assert_array_equal(new.cameras[1].rotation, two.cameras[1].rotation)
+    np.testing.assert_array_equal(new.frame_identity[1], new.identity)
+    assert np.abs(new.identity - two.identity).max() > 1e-4

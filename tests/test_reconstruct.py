@@ -289,7 +289,8 @@ def test_refine_frames_takes_the_face_meshs_478_points():
     assert lms.shape == (2, 478, 2)
     verts, reports = refine_frames(model, images, lms, "classical", steps=2)
     assert verts.shape == (2, model.n_vertices, 3) and np.isfinite(verts).all()
-    assert all(r["loss_weights"]["photo"] == 1.0 for r in reports)
+    # the classical renderer's own photometric weight (ClassicalRenderer.default_weights)
+    assert all(r["loss_weights"]["photo"] == 300.0 for r in reports)
     d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
     assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
     # weight overrides reach every frame's refinement

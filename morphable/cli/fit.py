@@ -51,6 +51,10 @@ def add_parser(sub):
                         "photometric the recovered albedo (the model needs UVs); an .obj "
                         "--out-mesh then names it through an .mtl beside it")
     p.add_argument("--texture-size", type=int, default=512, help="texels per side (default 512)")
+    p.add_argument("--texture-source", choices=("albedo", "photo"), default="albedo",
+                   help="what --out-texture holds after --refine photometric: the recovered albedo "
+                        "(default) or the photos' colours, shading included (without the "
+                        "photometric refinement always the photos' colours)")
     p.add_argument("--overlay", help="output .png/.jpg: the image with the fitted mesh and landmarks "
                                      "(several images: NAME_0.png, NAME_1.png, ...)")
     p.add_argument("--overlay-style", choices=("shaded", "wireframe", "none"), default="shaded",
@@ -58,8 +62,8 @@ def add_parser(sub):
     p.add_argument("--overlay-crop", type=float, metavar="MARGIN",
                    help="cut --overlay to the face, widened by MARGIN times its size (e.g. 0.2)")
     p.add_argument("--overlay-mask", action="store_true",
-                   help="tint red on --overlay the face pixels the photometric mask leaves out "
-                        "(needs --refine)")
+                   help="tint red on --overlay the face pixels the photometric mask weighs "
+                        "under 0.5 (needs --refine)")
     p.add_argument("--refine", choices=("photometric", "classical", "gar"),
                    help="then fit the pixels, all frames with one identity (needs torch, the "
                         "neural extra): photometric (albedo texture and light in closed form, "
@@ -120,7 +124,8 @@ def run(args):
                  texture_size=args.texture_size,
                  overlay_style=None if args.overlay_style == "none" else args.overlay_style,
                  overlay_crop=args.overlay_crop, refine_render=args.refine_render,
-                 mesh_kind=args.mesh, overlay_mask=args.overlay_mask)
+                 mesh_kind=args.mesh, overlay_mask=args.overlay_mask,
+                 albedo=args.texture_source == "albedo")
     report, res = result.report, result.fit
     for picture, run in zip(result.pictures, report.get("refine", [])):
         if run["fallback"]:

@@ -97,7 +97,7 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
             from ..raster import save_image_png
 
             written.append(Path(save_image_png(texture, resize_texture(recovered, texture_size))))
-            tex = True
+            tex = recovered                 # the model's own UVs go with it
             content["texture"] = {"path": str(texture), "size": texture_size,
                                   "kind": "albedo (photometric refinement)"}
         elif texture:
@@ -160,7 +160,8 @@ def resize_texture(image, size: int) -> np.ndarray:
 
 def paint_mask(image, state) -> np.ndarray:
     """A photo (path or array) with the face pixels its refinement's photometric mask
-    (``state.mask`` over the crop ``state.crop``) leaves out tinted red -> (H, W, 3) uint8."""
+    (``state.mask`` over the crop ``state.crop``) weighs under 0.5 tinted red -> (H, W, 3)
+    uint8."""
     from ..detection.images import as_image
 
     photo = as_image(image)[0].astype(np.float64)
@@ -175,6 +176,6 @@ def paint_mask(image, state) -> np.ndarray:
     kept = np.zeros((H, W))
     face[inside] = state.coverage[i[inside], j[inside]] > 0.5
     kept[inside] = state.mask[i[inside], j[inside]]
-    out = (face * (1 - kept))[..., None]
+    out = (face * (kept < 0.5))[..., None]
     photo = photo * (1 - 0.6 * out) + out * 0.6 * np.array([255.0, 0, 0])
     return np.clip(np.round(photo), 0, 255).astype(np.uint8)

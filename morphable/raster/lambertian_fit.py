@@ -32,8 +32,7 @@ from .shading import sh_basis
 __all__ = ["texel_index", "solve_light", "solve_albedo", "texture_prior", "mirror_texel_map",
            "shading_of", "UNIFORM_LIGHT"]
 
-UNIFORM_LIGHT = np.zeros((9, 3))
-UNIFORM_LIGHT[0] = 1.0
+UNIFORM_LIGHT = np.outer(np.eye(9)[0], np.ones(3))
 """(9, 3) a uniform white environment: every point shaded by its albedo (the light prior)."""
 
 

@@ -316,7 +316,9 @@ class Run:
 
 def optimise(state, losses, weights, steps: int, blendshapes: bool, recast_every: int = RECAST_EVERY,
              trace_every: int = 0, t0: float | None = None) -> Run:
-    """Adam on the frames' ``losses`` (:func:`~.loss.loss_function`) over the shared identity,
+    """Adam on the sum of the frames' ``losses`` (:func:`~.loss.loss_function`; the identity
+    prior counts once, as in a posterior over all frames: the more frames, the less it weighs
+    against their data) over the shared identity,
     the fitted frames' expressions and poses and the appearance entries the renderer's
     ``learning_rates`` name when it has no closed form, ``steps`` times; blendshape weights
     stay >= 0 and the renderer keeps its appearance valid (``constrain_appearance``). The
@@ -338,7 +340,7 @@ def optimise(state, losses, weights, steps: int, blendshapes: bool, recast_every
         total = w_alpha * u.alpha.pow(2).sum()
         for i in active:
             frame_total, terms, _, _ = losses[i](state.masks[i])
-            total = total + frame_total / len(active)
+            total = total + frame_total
             photo[i].append(float(terms["photo"].detach()))
         if not torch.isfinite(total):
             raise FitError("refine: the loss became NaN or inf; try fewer steps or smaller weights")
@@ -365,7 +367,7 @@ def optimise(state, losses, weights, steps: int, blendshapes: bool, recast_every
         for i, loss in enumerate(losses):
             frame_total, terms, img, _ = loss(state.masks[i], full=True)
             if state.active[i]:
-                total = total + frame_total / len(active)
+                total = total + frame_total
             photo[i].append(float(terms["photo"]))
             m = state.masks[i]
             residual.append(float(((img - state.problems[i].image).pow(2) * m).sum()

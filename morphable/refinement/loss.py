@@ -140,13 +140,12 @@ def loss_function(problem, unknowns, frame: int, renderer, weights: dict, featur
     model, u, i = problem().fit.model, unknowns, frame
     target_feats = [f.detach() for f in features(problem().image)] if features else []
 
-    def strip(a, idx):
+    def strip(a, idx, R):
         if torch.is_tensor(a) and a.dim() == 4 and a.shape[2:] == (R, R):
             return a.reshape(*a.shape[:2], 1, R * R)[..., idx]
         return a
 
     def losses(mask, full: bool = False):
-        nonlocal R
         p = problem()
         R = p.resolution
         verts = model.vertices(u.alpha, u.betas[i])
@@ -157,14 +156,14 @@ def loss_function(problem, unknowns, frame: int, renderer, weights: dict, featur
         if pixelwise:
             idx = torch.as_tensor(p.vis.pixels)
             n = sample_normals(verts, model.triangles, p.vis, rotation=Rt, foreground=True)
-            app = {k: strip(v, idx) for k, v in u.appearances[i].items()}
+            app = {k: strip(v, idx, R) for k, v in u.appearances[i].items()}
             img = renderer.render(n.T[None, :, None, :], app)
             xy = project_points(p.camera, interpolate(p.vis, verts, foreground=True), Rt,
                                 u.translation(i))
             grid = ((xy + 0.5) * (2.0 / R) - 1.0).to(p.image.dtype)[None, None]
             target = F.grid_sample(p.image, grid, mode="bilinear", padding_mode="border",
                                    align_corners=False)
-            m = strip(region, idx)
+            m = strip(region, idx, R)
         else:
             n = normal_map(verts, model.triangles, vis=p.vis, rotation=Rt)      # (R, R, 3)
             img = renderer.render(n.permute(2, 0, 1)[None], u.appearances[i])
@@ -181,5 +180,4 @@ def loss_function(problem, unknowns, frame: int, renderer, weights: dict, featur
         total = sum(weights[k] * v for k, v in terms.items())
         return total, terms, img, n
 
-    R = problem().resolution
     return losses
