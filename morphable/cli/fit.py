@@ -188,11 +188,11 @@ def _write_all_faces(args, results) -> int:
 
     import numpy as np
 
-    from ..io.atomic import atomic_path
+    from ..io.atomic import all_or_nothing, atomic_path
     from ..overlay import draw_overlay, label_faces
 
     written = []
-    try:
+    with all_or_nothing(written):
         for k, result in enumerate(results):
             written += result.write(mesh=_numbered(args.out_mesh, k), report=_numbered(args.report, k),
                                     texture=_numbered(args.out_texture, k), texture_size=args.texture_size,
@@ -218,10 +218,6 @@ def _write_all_faces(args, results) -> int:
                 Image.fromarray(image).save(tmp, format="JPEG" if Path(args.overlay).suffix.lower() in
                                             (".jpg", ".jpeg") else "PNG")
             written.append(Path(args.overlay))
-    except BaseException:
-        for p in written:
-            Path(p).unlink(missing_ok=True)
-        raise
     for result in results:
         f, face = result.report["frames"][0], result.report["face"]
         print(f"{args.images[0]} face {face['index']} of {face['faces_found']}: landmark RMSE "

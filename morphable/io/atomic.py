@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_path", "all_or_nothing"]
 
 
 @contextlib.contextmanager
@@ -47,6 +47,40 @@ def atomic_path(path, suffix: str | None = None):
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def all_or_nothing(written: list):
+    """Remove every path in ``written`` if the block fails: the files of one result all land or none.
+
+    The block appends each file to ``written`` once it is in place (:func:`atomic_path` makes
+    each one whole); a later failure would otherwise leave, say, a mesh without its report,
+    which would pass for a finished result.
+
+    Parameters
+    ----------
+    written : list of str or Path, filled by the block
+
+    Examples
+    --------
+    >>> import os
+    >>> written = []
+    >>> try:
+    ...     with all_or_nothing(written):
+    ...         _ = open("/tmp/part.txt", "w").write("one of two")
+    ...         written.append("/tmp/part.txt")
+    ...         raise OSError("the second file failed")
+    ... except OSError:
+    ...     pass
+    >>> os.path.exists("/tmp/part.txt")
+    False
+    """
+    try:
+        yield written
+    except BaseException:
+        for p in written:
+            Path(p).unlink(missing_ok=True)
+        raise
 
 
 def write_json(path, obj, indent: int = 1):

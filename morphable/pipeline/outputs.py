@@ -60,7 +60,7 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
                   albedo: bool = True) -> list:
     """Write what :meth:`morphable.pipeline.ImageFit.write` writes (see there); returns the
     paths written."""
-    from ..io.atomic import atomic_path
+    from ..io.atomic import all_or_nothing, atomic_path
 
     check_output_paths(mesh, report, texture, overlay, refine_render)
     check_mesh_kind(mesh_kind)
@@ -76,7 +76,7 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
                          "cannot be written")
     content = dict(result.report)
     written = []
-    try:
+    with all_or_nothing(written):
         if refine_render:
             from ..raster import save_image_png
 
@@ -132,12 +132,6 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
             with atomic_path(report) as tmp:
                 Path(tmp).write_text(json.dumps(content, indent=2))
             written.append(Path(report))
-    except BaseException:
-        # all or nothing: a mesh without its report (or a report naming overlays that are not
-        # there) would pass for a finished fit
-        for path in written:
-            Path(path).unlink(missing_ok=True)
-        raise
     return [Path(p) for p in written]
 
 

@@ -54,7 +54,7 @@ def write_track(track, folder, *, video, settings: dict | None = None, seconds: 
     the frames lost, the frame rate, image size, identity, ``settings``, mean landmark RMSE
     (px) and tracking speed (frames/s).
     """
-    from ..io.atomic import atomic_path
+    from ..io.atomic import all_or_nothing, atomic_path
     from ..tracking import write_track_glb
 
     out = check_track_folder(folder)
@@ -70,7 +70,7 @@ def write_track(track, folder, *, video, settings: dict | None = None, seconds: 
         summary["tracking_fps"] = track.n_frames / seconds
     out.mkdir(exist_ok=True)
     written = []
-    try:
+    with all_or_nothing(written):
         # the glTF first: cheap, so that its problems come before the overlay's long write
         if animated_mesh:
             written.append(write_track_glb(track, out / "track.glb"))
@@ -83,12 +83,6 @@ def write_track(track, folder, *, video, settings: dict | None = None, seconds: 
         with atomic_path(out / "track.json") as tmp:
             Path(tmp).write_text(json.dumps(summary, indent=2))
         written.append(out / "track.json")
-    except BaseException:
-        # all or nothing: a track without its arrays (or arrays without the asked-for files)
-        # would pass for a finished one
-        for p in written:
-            Path(p).unlink(missing_ok=True)
-        raise
     return written
 
 
@@ -160,7 +154,7 @@ def write_footage(footage, folder, *, video, settings: dict | None = None, secon
     under their plain names), per track T ``trackT_frames``, ``trackT_fitted``,
     ``trackT_score``, ``trackT_box`` (px), and ``track_person``, ``track_shot``, ``shots``.
     """
-    from ..io.atomic import atomic_path
+    from ..io.atomic import all_or_nothing, atomic_path
     from ..tracking import write_track_glb
 
     out = check_track_folder(folder)
@@ -207,7 +201,7 @@ def write_footage(footage, folder, *, video, settings: dict | None = None, secon
                   shots=np.array(footage.shots, np.int64).reshape(-1, 2), detected=footage.detected)
     out.mkdir(exist_ok=True)
     written = []
-    try:
+    with all_or_nothing(written):
         if animated_mesh:
             for k, p in enumerate(footage.people):
                 if p.tracked.any():
@@ -221,10 +215,6 @@ def write_footage(footage, folder, *, video, settings: dict | None = None, secon
         with atomic_path(out / "track.json") as tmp:
             Path(tmp).write_text(json.dumps(summary, indent=1))
         written.append(out / "track.json")
-    except BaseException:
-        for p in written:
-            Path(p).unlink(missing_ok=True)
-        raise
     return written
 
 
