@@ -13,8 +13,9 @@ Measured on the held-out faces: the RMS per-vertex distance (mm) between the neu
 mesh and the true one after the best similarity transform, for (a) the mean face, (b) the
 landmark fit (:func:`morphable.fitting.fit_landmarks`, the exact 68 labels plus Gaussian noise,
 ``convention="3d"``), (c) the descriptor's prediction alone, (d) the landmark fit with
-``identity_prior_mean`` set to the prediction, (e) the same with the prior's weight set to
-1 / the cross-validated residual variance of the prediction (the prior it really is).
+``identity_prior_mean`` set to the prediction, (e) the same with the prior's standard deviation
+per mode (``identity_prior_std``) set to the prediction's cross-validated residual spread (the
+prior it really is).
 On the London photos (:mod:`evaluation.bench_identity`'s measures: face-mesh landmarks, dlib's
 own detector for the descriptor): identification rate of the landmark fit against the fit with
 the prior. The descriptor alone identifies people well, so a gain there partly measures the
@@ -39,7 +40,7 @@ from morphable.metrics import umeyama
 from .bench_alignment import data_root
 
 __all__ = ["TEST_PEOPLE", "render_faces", "fit_ridge", "predict", "rms_error", "synthetic_table",
-           "london_table", "main"]
+           "london_table", "james_table", "main"]
 
 TEST_PEOPLE = 20
 """The London people whose textures only the held-out faces wear (the first ones)."""
@@ -73,20 +74,22 @@ def render_faces(n: int, textures, seed: int = 0, resolution: int = 256) -> dict
 def fit_ridge(D, A, ridges=RIDGES, folds: int = 5, seed: int = 0) -> dict:
     """Ridge regression ``A ~ D W + b`` from descriptors D (n, 128) to identity coefficients
     A (n, K), its strength chosen by ``folds``-fold cross-validation -> ``W`` (128, K), ``b``
-    (K,), ``ridge``, ``cv_mse`` (per ridge, in coefficient units^2) and ``residual_var`` (the
-    chosen ridge's cross-validated mean squared residual per coefficient)."""
+    (K,), ``ridge``, ``cv_mse`` (per ridge, mean over the coefficients, in coefficient
+    units^2) and ``residual_var`` (K,) (the chosen ridge's cross-validated mean squared
+    residual of each coefficient)."""
     D, A = np.asarray(D, np.float64), np.asarray(A, np.float64)
     if len(D) != len(A) or len(D) < folds:
         raise InputError(f"descriptor map: {len(D)} descriptors for {len(A)} identities")
     fold = np.random.default_rng(seed).permutation(len(D)) % folds
     cv = []
     for lam in ridges:
-        err = [((predict(_solve(D[fold != f], A[fold != f], lam), D[fold == f]) - A[fold == f]) ** 2).mean()
-               for f in range(folds)]
-        cv.append(float(np.mean(err)))
-    best = int(np.argmin(cv))
+        residual = np.zeros_like(A)
+        for f in range(folds):
+            residual[fold == f] = predict(_solve(D[fold != f], A[fold != f], lam), D[fold == f]) - A[fold == f]
+        cv.append((residual ** 2).mean(0))
+    best = int(np.argmin([c.mean() for c in cv]))
     m = _solve(D, A, ridges[best])
-    m.update(ridge=float(ridges[best]), cv_mse=np.array(cv), residual_var=cv[best])
+    m.update(ridge=float(ridges[best]), cv_mse=np.array([c.mean() for c in cv]), residual_var=cv[best])
     return m
 
 
@@ -129,12 +132,12 @@ def synthetic_table(model, train: dict, test: dict, noise_px: float = 2.0, seed:
         rows["descriptor alone"].append(rms_error(model.vertices(g), truth))
         for name, kw in (("landmark fit", {}), ("landmark fit + descriptor mean", {"identity_prior_mean": g}),
                          ("landmark fit + descriptor prior",
-                          {"identity_prior_mean": g, "prior_weight": 1.0 / m["residual_var"]})):
+                          {"identity_prior_mean": g, "identity_prior_std": np.sqrt(m["residual_var"])})):
             t = time.perf_counter()
             res = fit_landmarks(model, noisy, (256, 256), convention="3d", landmark_std_px=noise_px, **kw)
             ms[name].append((time.perf_counter() - t) * 1e3)
             rows[name].append(rms_error(res.neutral_vertices(), truth))
-    return {"ridge": m["ridge"], "cv_residual_var": m["residual_var"], "train_faces": len(train["identity"]),
+    return {"ridge": m["ridge"], "cv_residual_var": m["residual_var"].tolist(), "train_faces": len(train["identity"]),
             "test_faces": len(test["identity"]), "noise_px": noise_px,
             "rows": {k: {"mean_mm": float(np.mean(v)), "median_mm": float(np.median(v)),
                          "fit_ms": float(np.mean(ms[k])) if ms[k] else 0.0} for k, v in rows.items()}}
@@ -142,8 +145,8 @@ def synthetic_table(model, train: dict, test: dict, noise_px: float = 2.0, seed:
 
 def london_table(model, m: dict, root: Path, n=None) -> dict:
     """Identification on the London pairs (:func:`evaluation.bench_identity.consistency`) of
-    the landmark fit (face-mesh points), the same with the descriptor's prior mean (weight 1
-    and 1 / residual variance), and the descriptor's prediction alone."""
+    the landmark fit (face-mesh points), the same with the descriptor's prior mean (the
+    model's prior spread and the prediction's residual spread), and the descriptor's prediction alone."""
     from morphable.detection import detect
     from morphable.detection.images import read_image
     from morphable.fitting import fit_landmarks
@@ -172,12 +175,65 @@ def london_table(model, m: dict, root: Path, n=None) -> dict:
                 meshes["descriptor alone"][side, i] = model.vertices(g)
                 meshes["landmark fit + descriptor mean"][side, i] = fit_landmarks(
                     model, found.points, size, identity_prior_mean=g, **opts).neutral_vertices()
-                w = opts.pop("prior_weight", 1.0) / m["residual_var"]
                 meshes["landmark fit + descriptor prior"][side, i] = fit_landmarks(
-                    model, found.points, size, identity_prior_mean=g, prior_weight=w, **opts).neutral_vertices()
+                    model, found.points, size, identity_prior_mean=g, identity_prior_std=np.sqrt(m["residual_var"]),
+                    **opts).neutral_vertices()
             ms.append((time.perf_counter() - t) * 1e3)
     return {"people": len(pairs), "ms_per_photo_all_rows": float(np.mean(ms)),
             "rows": {k: consistency(v[0], v[1]) for k, v in meshes.items()}}
+
+
+def james_table(model, m: dict, root: Path) -> dict:
+    """james' two raw scanner photos (``scans/james/james.jpg``, side by side, the scan of the
+    same instant), each alone and both in one shared fit (face-mesh landmarks; the prior's
+    mean: the average of the photos' predictions), against his scan
+    (:func:`morphable.metrics.compare_to_scan`, the Florence protocol's point-to-plane mean,
+    mm) -> {row: {photo: mm}}."""
+    import tempfile
+
+    from morphable.detection import detect
+    from morphable.detection.images import read_image
+    from morphable.fitting import fit_landmarks
+    from morphable.fitting.options import detection_settings
+    from morphable.metrics import compare_to_scan
+
+    from .face_descriptor import photo_descriptors
+    from .scans import load_scan
+
+    folder = Path(root) / "scans" / "james"
+    scan = load_scan(folder / "james.obj", folder / "james.ljson")
+    img = read_image(folder / "james.jpg")
+    half = img.shape[1] // 2
+    photos = [np.ascontiguousarray(img[:, :half]), np.ascontiguousarray(img[:, half:])]
+    with tempfile.TemporaryDirectory() as tmp:
+        from PIL import Image
+
+        paths = [Path(tmp) / f"james_{k}.png" for k in range(2)]
+        for p, ph in zip(paths, photos):
+            Image.fromarray(ph).save(p)
+        guess = predict(m, photo_descriptors(paths))
+    found = [detect(ph, landmark_detector="facemesh") for ph in photos]
+    size = (half, img.shape[0])
+    ids = np.asarray(model.landmark_ids)
+
+    def error(vertices):
+        lms = np.where(ids[:, None] >= 0, vertices[np.maximum(ids, 0)], np.nan)
+        cmp = compare_to_scan(vertices, model.triangles, scan.vertices, scan.triangles, lms, scan.landmarks)
+        return float(cmp.summary()["point_to_plane"]["mean_mm"])
+
+    rows = {"mean face": {}, "landmark fit": {}, "landmark fit + descriptor mean": {},
+            "landmark fit + descriptor prior": {}, "descriptor alone": {}}
+    for name, frames in (("left", [0]), ("right", [1]), ("both", [0, 1])):
+        pts = np.stack([found[k].points for k in frames])
+        opts = detection_settings([found[k] for k in frames], pts.shape[1])
+        g = guess[frames].mean(0)
+        rows["mean face"][name] = error(model.vertices(np.zeros(model.n_identity)))
+        rows["descriptor alone"][name] = error(model.vertices(g))
+        for row, kw in (("landmark fit", {}), ("landmark fit + descriptor mean", {"identity_prior_mean": g}),
+                        ("landmark fit + descriptor prior",
+                         {"identity_prior_mean": g, "identity_prior_std": np.sqrt(m["residual_var"])})):
+            rows[row][name] = error(fit_landmarks(model, pts, size, **opts, **kw).neutral_vertices())
+    return rows
 
 
 @one_line_errors("evaluation.bench_descriptor_prior")
@@ -187,6 +243,7 @@ def main(argv=None):
     p.add_argument("--test", type=int, default=200, help="held-out faces")
     p.add_argument("--noise-px", type=float, default=2.0, help="landmark noise at 256 px")
     p.add_argument("--london", type=int, default=None, help="London people (default all; 0: none)")
+    p.add_argument("--james", action="store_true", help="also james' photos against his scan")
     p.add_argument("--data", type=Path, default=None,
                    help="shared data folder (default: $MORPHABLE_DATA or ../shared/data)")
     p.add_argument("--cache", type=Path, default=Path("reports/descriptor_prior_cache"),
@@ -214,7 +271,12 @@ def main(argv=None):
             np.savez(path, **sets[name])
     report = {"synthetic": synthetic_table(model, sets["train"], sets["test"], a.noise_px),
               "render_ms_per_face": float(np.mean(sets["train"]["ms"]))}
-    lines = ["| held-out synthetic faces | mean RMS (mm) | median RMS (mm) | fit ms |", "|---|---|---|---|"]
+    syn = report["synthetic"]
+    lines = [f"{syn['train_faces']} training faces, {syn['test_faces']} held out; ridge {syn['ridge']:g}, "
+             f"cross-validated R^2 of the coefficients {1 - np.mean(syn['cv_residual_var']) / np.var(sets['train']['identity']):.3f} (modes 1-5: "
+             f"{', '.join(f'{1 - v:.2f}' for v in syn['cv_residual_var'][:5])}); "
+             f"{report['render_ms_per_face']:.0f} ms per face to render and describe", "",
+             "| held-out synthetic faces | mean RMS (mm) | median RMS (mm) | fit ms |", "|---|---|---|---|"]
     for k, r in report["synthetic"]["rows"].items():
         lines.append(f"| {k} | {r['mean_mm']:.2f} | {r['median_mm']:.2f} | {r['fit_ms']:.1f} |")
     if a.london != 0:
@@ -225,6 +287,12 @@ def main(argv=None):
             f = lambda x, fmt="{:.2f}": fmt.format(x) if x is not None else "-"     # noqa: E731
             lines.append(f"| {k} | {f(r['within_mm'])} | {f(r['between_median_mm'])} | "
                          f"{f(r['identification_rate'], '{:.1%}')} |")
+    if a.james:
+        m = fit_ridge(sets["train"]["descriptor"], sets["train"]["identity"])
+        report["james"] = james_table(model, m, root)
+        lines += ["", "| james vs scan (mm) | left photo | right photo | both |", "|---|---|---|---|"]
+        lines += [f"| {k} | {r['left']:.2f} | {r['right']:.2f} | {r['both']:.2f} |"
+                  for k, r in report["james"].items()]
     a.report.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(a.report) as tmp:
         tmp.write_text(json.dumps(report, indent=1))

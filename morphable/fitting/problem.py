@@ -132,6 +132,11 @@ class Problem:
             if len(mean) < K:
                 raise InputError(f"identity_prior_mean: {len(mean)} coefficients, the fit uses {K}")
             self.prior_mean[:K] = mean[:K]
+        if options.identity_prior_std is not None:
+            std = options.identity_prior_std
+            if len(std) < K:
+                raise InputError(f"identity_prior_std: {len(std)} values, the fit uses {K}")
+            self.prior[:K] /= std[:K] ** 2
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
