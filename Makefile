@@ -34,6 +34,10 @@ $(STAMP): setup.cfg pyproject.toml | system-deps
 	# face mesh (~180 MB to download, ~670 MB installed, and opencv-contrib-python would
 	# overwrite the headless cv2); what it does import is the facemesh extra (docs/detection.md)
 	$(BIN)/python -m pip install -q --no-deps mediapipe==0.10.14
+	# shot cuts (morphable.shots): PySceneDetect with --no-deps as well, because its declared
+	# opencv-python would overwrite the headless cv2 too; what it does import (click,
+	# platformdirs, tqdm, numpy) is in the video extra
+	$(BIN)/python -m pip install -q --no-deps 'scenedetect>=0.7,<0.8'
 	touch $@
 
 demo: $(STAMP)

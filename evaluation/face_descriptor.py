@@ -82,7 +82,9 @@ def aligned_descriptors(images, model: str = "sfm", batch_size: int = 64) -> np.
 def point_descriptors(images, points68) -> np.ndarray:
     """(N, 128) dlib descriptors of (N, H, W, 3) uint8 images (or a list of them) whose iBUG-68
     points (N, 68, 2) px are known: dlib's 150 px chip is cut around the five points
-    :data:`DLIB_FIVE` of each (no detection)."""
+    :data:`DLIB_FIVE` of each (no detection). Unlike
+    :func:`morphable.descriptors.face_descriptors` (all 68 points, finite), it takes labels
+    with undefined rows, as SFM's synthetic faces have (two NaN rows)."""
     import dlib
 
     net = _dlib_models()[0]

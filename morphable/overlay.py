@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["draw_overlay", "save_overlay", "write_overlays", "overlay_paths", "check_overlay_path", "face_box", "MESH_STYLES", "GIVEN_COLOR",
+__all__ = ["draw_overlay", "label_faces", "save_overlay", "write_overlays", "overlay_paths", "check_overlay_path", "face_box", "MESH_STYLES", "GIVEN_COLOR",
            "FITTED_COLOR"]
 
 MESH_STYLES = ("shaded", "wireframe", None)
@@ -262,3 +262,34 @@ def overlay_paths(path, n_frames: int) -> list:
     if n_frames == 1:
         return [path]
     return [path.with_name(f"{path.stem}_{i}{path.suffix}") for i in range(n_frames)]
+
+
+def label_faces(image, boxes, labels, color=(255, 255, 0)) -> np.ndarray:
+    """Write each label at the top-left corner of its box (a face's number on a photo or frame
+    with several faces).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8
+    boxes : (N, 4) px ``(left, top, right, bottom)``
+    labels : N str
+    color : (3,) int 0-255
+
+    Returns
+    -------
+    (H, W, 3) uint8, a copy.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    out = Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8))
+    draw = ImageDraw.Draw(out)
+    H = out.size[1]
+    try:
+        font = ImageFont.load_default(size=max(12, H // 30))
+    except TypeError:                 # Pillow before 10.1 has one size
+        font = ImageFont.load_default()
+    for b, text in zip(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), labels):
+        x, y = float(b[0]), max(0.0, float(b[1]) - max(12, H // 30) - 2)
+        draw.text((x, y), str(text), fill=tuple(int(c) for c in color), font=font,
+                  stroke_width=2, stroke_fill=(0, 0, 0))
+    return np.asarray(out)

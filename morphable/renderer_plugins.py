@@ -21,8 +21,17 @@ Inverting a renderer (:mod:`morphable.refinement`) asks it, through the hooks of
 starts (``initial_appearance``), which appearance tensors move and how fast
 (``learning_rates``), which pixels the photometric terms compare (``photometric_mask``),
 what prior the appearance has (``appearance_prior``), what keeps it valid after a step
-(``constrain_appearance``) and which perceptual features it offers (``feature_network``).
-The refinement never asks which renderer it has.
+(``constrain_appearance``), which perceptual features it offers (``feature_network``), which
+loss weights it changes (``default_weights``), whether it solves its appearance in closed form
+from the face pixels (``solve_appearance``: the classical renderer's albedo texture and SH
+light; the GAR's latent moves by gradient steps instead) and how its appearance follows a new
+view of the face (``view_appearance``). The refinement never asks which renderer it has.
+
+The pixel views these two hooks take describe one frame's crop: ``resolution`` R, ``pixels``
+(N,) flat indices into the R x R crop of the face pixels, their camera-frame unit ``normals``
+(N, 3), image colours ``target`` (N, 3) in [0, 1], robust mask ``weight`` (N,) in [0, 1], UV
+coordinates ``uv`` (N, 2) of the surface point each sees (None for a model without UVs) and
+the ``model`` (:class:`morphable.refinement.geometry.PixelView`).
 """
 from __future__ import annotations
 
@@ -58,6 +67,24 @@ class RendererBase:
     resolution: int | None = None
     learning_rates: dict = {}
     """Adam learning rate of each appearance entry refinement optimises (others stay fixed)."""
+    default_weights: dict = {}
+    """Overrides of the refinement's loss weights for this renderer (the user's still win)."""
+    pixelwise: bool = False
+    """True when each output pixel depends only on its own normal and appearance pixels (no
+    convolution): the refinement may then render the face pixels alone, as a (1, 3, 1, N)
+    strip."""
+
+    def solve_appearance(self, appearances, views) -> bool:
+        """Solve the appearance of every frame in closed form given the geometry, in place:
+        ``appearances`` the frames' dicts, ``views`` their pixel views (module docstring).
+        Returns False (the default) when the renderer has no closed form: its
+        ``learning_rates`` entries then move by gradient steps."""
+        return False
+
+    def view_appearance(self, appearance, view) -> dict:
+        """The appearance of a frame for a new pixel ``view`` of the face (after its
+        visibility is re-cast, or for :func:`morphable.refinement.edit`); default: unchanged."""
+        return appearance
 
     def initial_appearance(self, image, coverage, seed: int = 0) -> tuple[dict, str | None]:
         """Where the appearance starts for ``image`` (1, 3, R, R) in [0, 1] with the fitted

@@ -20,11 +20,17 @@ def assert_mesh_holds(path, vertices, triangles, atol: float = 1e-4) -> None:
 
 
 def report_vertices(report: dict, model) -> np.ndarray:
-    """(V, 3) mm: the mesh a fit report's mesh file holds, rebuilt from the report's numbers
-    alone: one frame, its identity and expression; several, the identity without expression
+    """(V, 3) mm: the mesh a fit report's mesh file holds by default, rebuilt from the report's
+    numbers alone: the identity without expression, for one frame and for several
     (:meth:`morphable.pipeline.ImageFit.mesh_vertices`)."""
-    identity = np.asarray(report["identity"], dtype=np.float64)
-    if report["n_frames"] > 1:
-        return model.vertices(identity)
-    expression = report["frames"][0]["expression"]
-    return model.vertices(identity, np.array([expression[n] for n in model.expression_names]))
+    return model.vertices(np.asarray(report["identity"], dtype=np.float64))
+
+
+def report_expressive_vertices(report: dict, model, frame: int = 0) -> np.ndarray:
+    """(V, 3) mm: frame ``frame``'s face with its expression (``--mesh expressive``), rebuilt
+    from the report's numbers alone."""
+    f = report["frames"][frame]
+    identity = f.get("identity", report["identity"])
+    expression = f["expression"]
+    return model.vertices(np.asarray(identity, dtype=np.float64),
+                          np.array([expression[n] for n in model.expression_names]))

@@ -75,8 +75,9 @@ def test_written_files_read_back(by_path, tmp_path):
                             texture_size=64)
     assert sorted(p.name for p in written) == ["face.png", "fit.json", "fit.mtl", "fit.obj", "overlay.png"]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in written)
-    assert_mesh_holds(tmp_path / "fit.obj", by_path.vertices(0), by_path.fit.model.triangles)
+    assert_mesh_holds(tmp_path / "fit.obj", by_path.fit.neutral_vertices(), by_path.fit.model.triangles)
     report = json.loads((tmp_path / "fit.json").read_text())
+    assert report["mesh"] == {"kind": "neutral", "paths": [str(tmp_path / "fit.obj")]}
     assert report["frames"] == json.loads(json.dumps(by_path.report["frames"]))
     assert report["overlays"] == [str(tmp_path / "overlay.png")]
     assert report["texture"]["size"] == 64 and 0.3 < report["texture"]["observed"] <= 1
@@ -86,15 +87,22 @@ def test_written_files_read_back(by_path, tmp_path):
 @pytest.mark.parametrize("suffix", ["obj", "ply", "stl", "off", "glb"])
 def test_every_mesh_format_holds_the_fitted_face(by_path, two_frames, sfm, tmp_path, suffix):
     # the fitted face, not the model's mean (which lies up to ~9 mm away), in every format;
-    # several frames: their identity without expression (the photo and its mirror image)
+    # by default the identity without expression, for one photo as for several (the photo and
+    # its mirror image); mesh_kind="expressive": each frame's face with its expression
     from mesh_check import assert_mesh_holds
 
     by_path.write(mesh=tmp_path / f"one.{suffix}")
-    assert_mesh_holds(tmp_path / f"one.{suffix}", by_path.vertices(0), sfm.triangles)
-    assert np.abs(by_path.vertices(0) - sfm.mean.reshape(-1, 3)).max() > 3.0
+    assert_mesh_holds(tmp_path / f"one.{suffix}", by_path.fit.neutral_vertices(), sfm.triangles)
+    assert np.abs(by_path.fit.neutral_vertices() - sfm.mean.reshape(-1, 3)).max() > 3.0
+    by_path.write(mesh=tmp_path / f"onex.{suffix}", mesh_kind="expressive")
+    assert_mesh_holds(tmp_path / f"onex.{suffix}", by_path.vertices(0), sfm.triangles)
     two_frames.write(mesh=tmp_path / f"two.{suffix}")
     assert_mesh_holds(tmp_path / f"two.{suffix}", two_frames.fit.neutral_vertices(), sfm.triangles)
     assert np.abs(two_frames.fit.neutral_vertices() - two_frames.vertices(0)).max() > 0.1
+    written = two_frames.write(mesh=tmp_path / f"twox.{suffix}", mesh_kind="expressive")
+    assert [p.name for p in written if p.suffix != ".mtl"] == [f"twox_0.{suffix}", f"twox_1.{suffix}"]
+    for i in range(2):
+        assert_mesh_holds(tmp_path / f"twox_{i}.{suffix}", two_frames.vertices(i), sfm.triangles)
 
 
 def test_write_is_all_or_nothing(by_path, tmp_path):

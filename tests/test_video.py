@@ -224,8 +224,12 @@ def test_track_writes_every_frame_reports_lost_ones_and_detects_only_when_lost(f
     assert t["detector_px"].shape[:2] == (12, 478) and t["expression"].shape == (12, 6)
     np.testing.assert_array_equal(t["tracked"], ~np.isin(np.arange(12), [3, 4]))
     assert np.isnan(t["landmarks_68_px"][[3, 4]]).all() and np.isfinite(t["euler_deg"][t["tracked"]]).all()
-    # the face detector: the first frame, the two lost ones, the first after them
-    np.testing.assert_array_equal(np.flatnonzero(t["detected"]), [0, 3, 4, 5])
+    # the face detector: the first frame, the two lost ones, the first after them, and the
+    # search for faces entering the picture, every QUICK_S (0.25 s: 8 frames) after the one at 3
+    from morphable.tracking import QUICK_S
+
+    assert round(QUICK_S * 30) == 8
+    np.testing.assert_array_equal(np.flatnonzero(t["detected"]), [0, 3, 4, 5, 11])
     # the face pans right 2 px a frame: so do the fitted points
     ok = t["tracked"]
     x = np.nanmean(t["landmarks_68_px"][ok, :, 0], 1)
@@ -275,7 +279,7 @@ def test_track_bad_inputs_write_nothing(face_clip):
     (face_clip / "file.txt").write_text("x")
     before = sorted(p.name for p in face_clip.iterdir())
     for args, message in [
-        (["track", "grey.mp4", "--out", "t"], "grey.mp4: no face found in any of the 6 sampled frames"),
+        (["track", "grey.mp4", "--out", "t"], "grey.mp4: no face found in any of its 6 frames"),
         (["track", "face.mp4", "--out", "file.txt"], "file.txt: exists and is not a folder"),
         (["track", "face.mp4", "--out", "nosuch/t"], "nosuch does not exist"),
         (["track", "face.mp4", "--out", "t", "--smoothing-hz", "-1"], "--smoothing-hz must be >= 0"),

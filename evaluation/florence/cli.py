@@ -25,7 +25,7 @@ from morphable.refinement import parse_loss_weights
 from ..scans import UNITS, load_scan, photo_colors
 from ..videos import CONDITIONS
 from .methods import METHODS
-from .protocol import (format_table, run_model_scans, run_protocol, run_videos, save_error_maps,
+from .protocol import (RENDERERS, format_table, run_model_scans, run_protocol, run_videos, save_error_maps,
                        save_heatmap)
 
 __all__ = ["main"]
@@ -67,6 +67,10 @@ def _parser():
                    help="landmarks detected on rendered frames (--landmark-detector, --face-detector) "
                         "instead of projected scan landmarks")
     add_detector_arguments(p)
+    p.add_argument("--renderer", choices=RENDERERS, default="raster",
+                   help="how synthetic frames are rendered (--detect, gar): raster (morphable."
+                        "raster, the shading our fitters assume) or pbr (evaluation.pbr: "
+                        "physically based, photo backgrounds, defocus, noise, JPEG)")
     p.add_argument("--frames-dir", help="real frames: DIR/<condition>/*.png with optional .pts")
     p.add_argument("--videos", nargs="+", metavar="COND=PATH",
                    help="real videos, one per condition (e.g. indoor=clip.mp4): --frames frames "
@@ -87,6 +91,11 @@ def _parser():
     p.add_argument("--expression-weight", type=float,
                    help="ours: weight of the expression prior (default 1: the fitter's, "
                         "morphable.fitting.noise.expression_precision)")
+    p.add_argument("--photometric-steps", type=int,
+                   help="ours-photometric(-gar): refinement Adam steps (default 100)")
+    p.add_argument("--photometric-resolution", type=int,
+                   help="ours-photometric(-gar): face crop size, px (default the refinement's)")
+    add_loss_weight_argument(p, "--photometric-loss-weight", "ours-photometric(-gar): refinement")
     p.add_argument("--gar-steps", type=int,
                    help="gar: refinement steps per frame (default 100)")
     p.add_argument("--gar-region", choices=("crop", "face"),
@@ -193,6 +202,17 @@ def main(argv=None) -> int:
         for path in videos.values():     # not a video, no frames: before any fit
             probe(path)
     efforts = {"ours": ours, "ours-independent": dict(ours)} if ours else {}
+    photometric = {k: v for k, v in (("steps", args.photometric_steps),
+                                     ("resolution", args.photometric_resolution)) if v is not None}
+    if any(v < 1 for v in photometric.values()):
+        raise InputError(f"--photometric-steps/--photometric-resolution: must be at least 1, "
+                         f"got {photometric}")
+    if args.photometric_loss_weight:
+        photometric["weights"] = parse_loss_weights(args.photometric_loss_weight,
+                                                    "--photometric-loss-weight")
+    if ours or photometric:
+        efforts.update({m: {**ours, **photometric}
+                        for m in ("ours-photometric", "ours-photometric-gar")})
     if args.gar_steps is not None:
         if args.gar_steps < 1:
             raise InputError(f"--gar-steps {args.gar_steps}: must be at least 1")
@@ -208,7 +228,8 @@ def main(argv=None) -> int:
         check_plot_path(args.plot)
     common = dict(efforts=efforts, radius=args.radius, icp=not args.no_icp,
                   icp_scale=args.icp_scale, landmark_scale=not args.rigid,
-                  log=logging.getLogger("evaluation.florence").info, progress=not args.quiet)
+                  log=logging.getLogger("evaluation.florence").info, progress=not args.quiet,
+                  renderer=args.renderer)
     with logging_redirect_tqdm():
         if args.synthetic_scan:
             errors = []

@@ -216,6 +216,57 @@ class OursIndependent(Ours):
     shared_identity = False
 
 
+class OursPhotometric(Ours):
+    """:class:`Ours`' shared landmark fit, then the photometric refinement of all the frames
+    at once (:func:`morphable.refinement.refine_shared`: one identity, an albedo texture,
+    each frame's light, a robust mask) with the ``renderer`` of the class ("classical");
+    the refined per-frame meshes averaged. ``settings``: ``steps`` (Adam steps, default
+    100), ``weights`` (loss-weight overrides), ``resolution`` (crop px, default the
+    refinement's); the others go to the landmark fit as for :class:`Ours`. Torch runs on
+    one thread (the refinement's speed target is one core)."""
+
+    name = "ours-photometric"
+    needs_images = True
+    renderer = "classical"
+
+    def prepare(self, model, scan: Scan | None = None) -> None:
+        super().prepare(model, scan)
+        import torch
+
+        from morphable.refinement import refine_shared
+
+        torch.set_num_threads(1)
+        self.refine_shared = refine_shared
+
+    def reconstruct(self, frames: Frames, settings: dict) -> Reconstruction:
+        if frames.images is None:
+            raise InputError(f"method {self.name}: needs the video frames (synthetic videos render them)")
+        settings = dict(settings)
+        refine = {k: settings.pop(k) for k in ("steps", "weights", "resolution") if k in settings}
+        options = _video_fit_options(settings, frames)
+        t = time.perf_counter()
+        res = self.fit_landmarks(self.model, frames.landmarks, frames.image_size,
+                                 shared_identity=True, **options)
+        refined, reports, _ = self.refine_shared(list(frames.images), res, self.renderer, **refine)
+        v = refined.vertices().mean(0)
+        dt = time.perf_counter() - t
+        return Reconstruction.from_vertices(self.model, v, dt, len(frames), {
+            "mask_coverage": [round(float(r["mask_coverage"]), 3) for r in reports],
+            "photometric_residual": [round(float(r["photometric_residual"]), 4) for r in reports],
+            "fallback": [bool(r["fallback"]) for r in reports],
+            "refine_s": round(float(reports[0]["runtime_s"]), 2), "camera": options["camera"]})
+
+
+class OursPhotometricGar(OursPhotometric):
+    """:class:`OursPhotometric` with the GAR as the refinement's renderer (the neural plugin)."""
+
+    name = "ours-photometric-gar"
+    renderer = "gar"
+
+    def __init__(self):
+        gar_refiner()      # the plugin is installed: fails before the run's videos
+
+
 class Eos(Method):
     """eos-py's fit (:class:`evaluation.peers.EosFitter`) of the SFM it ships with, whatever
     the protocol's model, one affine camera and fit per frame, averaged. ``settings``: the
@@ -358,7 +409,8 @@ class Gar(Method):
 
 
 METHODS: dict[str, type[Method]] = {cls.name: cls for cls in (
-    Ours, OursIndependent, Eos, MeanFace, SurfaceFit, Landmarks3D, Gar)}
+    Ours, OursIndependent, OursPhotometric, OursPhotometricGar, Eos, MeanFace, SurfaceFit,
+    Landmarks3D, Gar)}
 """The methods by name (``--methods``)."""
 
 

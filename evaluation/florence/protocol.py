@@ -23,7 +23,8 @@ from ..scans import Scan, model_scan
 from ..videos import CONDITIONS, sample_frames, synthetic_video
 from .methods import Frames, Reconstruction, ibug68_points, prepare_methods, reconstruct_video
 
-__all__ = ["ErrorMap", "evaluate", "frames_from_video", "video_landmarks", "detector_error", "run_protocol",
+__all__ = ["RENDERERS", "frame_renderer", "ErrorMap", "evaluate", "frames_from_video",
+           "video_landmarks", "detector_error", "run_protocol",
            "run_model_scans", "run_videos", "format_table", "save_error_maps", "save_heatmap"]
 
 METRIC = ("point-to-plane distance (mm) from each reconstructed vertex within {r:g} mm of the "
@@ -189,7 +190,7 @@ def frames_from_video(path, k: int = 5, with_frames: bool = False, detector=("au
 
 def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames: int, seed: int,
                     detect=None, frames_dir=None, with_frames: bool = False,
-                    video=None) -> tuple[Frames, dict]:
+                    video=None, renderer: str = "raster") -> tuple[Frames, dict]:
     """The sampled frames of one video -> (:class:`Frames`, description for the report).
 
     The frames' landmarks: 68, or the 478 of the face mesh or the landmark network when they
@@ -197,7 +198,10 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     rendered from the scan, or read from ``frames_dir`` or ``video`` — when ``with_frames``.
     ``detect``: None (projected scan landmarks) or (landmark detector, face detector) run on
     the rendered frames (and on the frames of ``frames_dir`` that have no ``.pts``, and always
-    on those of ``video``, a real video file: :func:`frames_from_video`)."""
+    on those of ``video``, a real video file: :func:`frames_from_video`). ``renderer``: how
+    synthetic frames are rendered, ``"raster"`` (:func:`evaluation.videos.render_frames`, the
+    shading our fitters assume) or ``"pbr"`` (:func:`evaluation.pbr.render_frames`, a
+    physically based rendering that shares nothing with them)."""
     if video is not None:
         return frames_from_video(video, n_sampled, with_frames, detect or ("auto", "auto"))
     if frames_dir is not None:
@@ -213,9 +217,8 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
             "focal_px": float(video.cameras[0].focal)}
     images = None
     if detect or with_frames:
-        from ..videos import render_frames
-
-        images = render_frames(scan, video, seed=seed)
+        images = frame_renderer(renderer)(scan, video, seed=seed)
+        desc["renderer"] = renderer
     if detect:
         from morphable.detection import describe
 
@@ -234,6 +237,21 @@ def video_landmarks(scan: Scan, model, condition: str, n_sampled: int, n_frames:
     desc["n_landmarks"] = np.isfinite(lm[..., 0]).sum(1).tolist()
     return Frames(lm, video.image_size, images if with_frames else None, desc["focal_px"],
                   np.array(desc["detected"]), sigma), desc
+
+
+RENDERERS = ("raster", "pbr")
+"""Renderers of synthetic frames: ``raster`` (``morphable.raster``, the default), ``pbr``."""
+
+
+def frame_renderer(name: str):
+    """The ``render_frames(scan, video, seed=...)`` function of a renderer in :data:`RENDERERS`."""
+    if name == "pbr":
+        from ..pbr import render_frames
+    elif name == "raster":
+        from ..videos import render_frames
+    else:
+        raise InputError(f"unknown renderer {name!r}; choose from {', '.join(RENDERERS)}")
+    return render_frames
 
 
 def _detect_setting(detect):
@@ -260,7 +278,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                  seed: int = 0, detect=None, frames_dir=None, efforts: dict | None = None,
                  radius: float = CROP_RADIUS_MM, icp: bool = True, icp_scale: bool = False,
                  landmark_scale: bool = True, log=None, progress: bool = False, focal_px=None,
-                 prepared: dict | None = None, videos: dict | None = None):
+                 prepared: dict | None = None, videos: dict | None = None,
+                 renderer: str = "raster"):
     """Run every method on every condition (``methods``: names in
     :data:`~evaluation.florence.methods.METHODS`; ``efforts``: {name: the method's settings};
     ``log``: a callable taking one line per cell; ``progress``: a tqdm bar on stderr;
@@ -269,7 +288,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     :func:`~evaluation.florence.methods.prepare_methods`, to share their per-scan work — surface
     fits, loaded fitters — between runs on the same scan; default: prepared here; ``videos``:
     {condition: path} real videos, their sampled frames' landmarks detected with ``detect``
-    (default "auto"), instead of synthetic ones: the conditions are then its keys).
+    (default "auto"), instead of synthetic ones: the conditions are then its keys;
+    ``renderer``: of synthetic frames, :data:`RENDERERS`).
 
     Returns
     -------
@@ -277,6 +297,7 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     errors : list of :class:`ErrorMap`, one per cell that succeeded, condition by condition
     """
     efforts = efforts or {}
+    frame_renderer(renderer)     # an unknown one fails before any work
     if videos is not None:
         conditions, detect = list(videos), detect or ("auto", "auto")
     for c in conditions:
@@ -296,7 +317,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
     for c in conditions:
         bar.set_postfix_str(f"{c} video", refresh=False)
         frames, desc = read.pop(c, None) or video_landmarks(
-            scan, model, c, n_sampled, n_frames, seed, detect, frames_dir, with_frames=with_frames)
+            scan, model, c, n_sampled, n_frames, seed, detect, frames_dir, with_frames=with_frames,
+            renderer=renderer)
         if frames.focal_px is None:
             frames = dataclasses.replace(frames, focal_px=focal_px)
         report["videos"][c] = desc
@@ -332,7 +354,8 @@ def run_protocol(scan: Scan, model, methods, conditions, n_sampled: int = 5, n_f
                       "n_landmarks": int(np.isfinite(scan.landmarks).all(1).sum())}
     report["settings"] = {"model": model.name, "frames": n_sampled,
                           "video_frames": None if videos is not None else n_frames,
-                          "seed": seed, "detect": _detect_setting(detect), "efforts": efforts}
+                          "seed": seed, "detect": _detect_setting(detect), "efforts": efforts,
+                          "renderer": renderer}
     return report, errors
 
 

@@ -24,7 +24,9 @@
   window search).
 
 :func:`detect` gives a :class:`~.result.Detection` (points, σ per point where the detector
-predicts one, the 68 iBUG points, the convention, the face score and box);
+predicts one, the 68 iBUG points, the convention, the face score and box) of the largest face;
+:func:`detect_all` one for every face of a photo, left to right; :func:`detect_in_boxes` the
+faces in given boxes (a video's boxes carried from its previous frame);
 :func:`detect_landmarks` and :func:`detect_ibug68` its points alone. :mod:`.images` reads
 photos (grayscale, RGBA, 16-bit, EXIF-rotated -> upright RGB). Nothing here imports
 mediapipe, cv2, dlib, torch or a plugin until a detection runs (or ``"auto"`` asks a plugin
@@ -52,7 +54,8 @@ from .images import as_image, image_size, read_image
 from .result import FACE_PROBABILITY, Detection, landmark_noise
 
 __all__ = ["LANDMARK_DETECTORS", "FACE_DETECTORS", "resolve_detectors", "detect", "detect_landmarks",
-           "detect_ibug68", "detect_faces", "describe", "landmark_count", "Detection", "landmark_noise",
+           "detect_ibug68", "detect_faces", "detect_all", "detect_in_boxes", "face_box", "SAME_FACE_IOU",
+           "QUICK_FACE_DETECTORS", "QUICKEST_FACE_DETECTORS", "TILES", "describe", "landmark_count", "Detection", "landmark_noise",
            "read_image", "image_size", "as_image"]
 
 LANDMARK_DETECTORS = ("auto", "fused", "facemesh", "dlib", "network")
@@ -64,7 +67,21 @@ FACE_DETECTORS = {"facemesh": ("auto", "short-range", "full-range"), "dlib": ("a
 """The face detectors each landmark detector takes ("auto": its default; "fused": the
 network's, which finds the face). A plugin other than the network lists its own (its class's
 ``FACE_DETECTORS``)."""
+QUICK_FACE_DETECTORS = {"facemesh": "full-range", "network": "full-range", "fused": "full-range",
+                        "dlib": "hog"}
+"""Per landmark detector, a quick face detector that finds small faces: mediapipe's full-range
+detector (5 ms on a 640 x 480 frame with faces; 70 ms without, in its own tiles, where "auto"
+ends in the network's window search, about 1.2 s) and dlib's HOG. :func:`detect_all`'s tiles
+and a video's searches between full ones (:mod:`morphable.tracking.footage`) use it."""
+QUICKEST_FACE_DETECTORS = {"facemesh": "short-range", "network": "short-range", "fused": "short-range",
+                           "dlib": "hog"}
+"""Per landmark detector, its quickest face detector: mediapipe's short-range detector (2-3 ms
+on a 640 x 480 frame, with or without a face; it misses faces under about 100 px there) and
+dlib's HOG. A video's frames without a tracked face and a photo's count of faces use it."""
 BUILTIN = ("facemesh", "dlib")
+SAME_FACE_IOU = 0.5
+"""Two detections whose :func:`face_box` overlap by this IoU or more are one face read twice
+(two face detectors' boxes, or two boxes of a video, on the same face)."""
 FUSED = "fused"
 
 
@@ -254,6 +271,131 @@ def detect_faces(image, *, landmark_detector: str = "auto", face_detector: str =
         return boxes(image, face_detector=faces)
     network = "network" if landmarks == FUSED else landmarks
     return plugins.detector(network).detect_faces(as_image(image)[0], face_detector=faces)
+
+
+def face_box(detection: Detection) -> np.ndarray:
+    """A detection's face box -> (4,) float64 ``(left, top, right, bottom)`` px: the
+    detector's own (:attr:`Detection.box`, which :func:`detect`'s ``box=`` reads) where it
+    gives one, else the extent of its 68 iBUG points (what dlib's and the face mesh's ``box=``
+    read roughly)."""
+    if detection.box is not None:
+        return np.asarray(detection.box, dtype=np.float64)
+    return np.concatenate([detection.ibug68.min(0), detection.ibug68.max(0)])
+
+
+def detect_in_boxes(image, boxes, *, landmark_detector: str = "auto",
+                    face_detector: str = "auto", min_score: float | None = FACE_PROBABILITY) -> list:
+    """The face in each of ``boxes``: :func:`detect` with ``box=`` for each.
+
+    Parameters
+    ----------
+    image : path or (H, W, 3) array (decoded once for all boxes)
+    boxes : (B, 4) px ``(left, top, right, bottom)``, e.g. :func:`face_box` of a video's
+        previous frame's detections
+    landmark_detector, face_detector : see :func:`detect`
+    min_score : a reading whose face score (:attr:`Detection.score`, where the detector gives
+        one) is below this is no face (default :data:`~.result.FACE_PROBABILITY`); None keeps
+        every reading, for the caller to judge
+
+    Returns
+    -------
+    list of B :class:`~.result.Detection` or None: None where the box holds no face (the
+    detector finds none there, or scores its crop below ``min_score``, or the box lies outside
+    the image).
+    """
+    img, name = as_image(image)
+    out = []
+    for b in np.asarray(boxes, dtype=np.float64).reshape(-1, 4):
+        try:
+            found = detect(img, landmark_detector=landmark_detector, face_detector=face_detector,
+                           box=b)
+        except (FitError, InputError):
+            # a carried box that has left the picture or shrunk below what a detector reads
+            # holds no face to read, which is what the caller asks
+            found = None
+        if found is not None and found.score is not None and min_score is not None and found.score < min_score:
+            found = None
+        out.append(found)
+    return out
+
+
+TILES = ((2, 2 / 3), (3, 1 / 2))
+""":func:`detect_all`'s tiles: ``(n, side)``, n x n overlapping squares of ``side`` x the
+photo's longer side, spread edge to edge. On the first 20 AFW photos with two faces or more
+(61 faces annotated, 26-70 px wide ones among them; research use only) the face detectors'
+whole-photo pass finds 52 of them, with the tiles all 61 (0.5 s a photo on the 2 shared cores;
+``python -m evaluation.bench_footage --group 20``), and 13 faces AFW does not annotate."""
+
+
+def _tile_boxes(img: np.ndarray, landmark_detector: str, face_detector: str) -> list:
+    """The face boxes of :data:`TILES` (each tile's own face detection), in photo px."""
+    H, W = img.shape[:2]
+    out = []
+    for n, frac in TILES:
+        side = int(round(frac * max(W, H)))
+        for y in np.linspace(0, max(0, H - side), n).astype(int):
+            for x in np.linspace(0, max(0, W - side), n).astype(int):
+                tile = np.ascontiguousarray(img[y:y + side, x:x + side])
+                for b in detect_faces(tile, landmark_detector=landmark_detector, face_detector=face_detector):
+                    out.append(b + [x, y, x, y])
+    return out
+
+
+def detect_all(image, *, landmark_detector: str = "auto", face_detector: str = "auto", skip=None,
+               tiles: bool = False) -> list:
+    """Every face of a photo, ordered left to right.
+
+    The face detector's boxes (:func:`detect_faces`), each read by the landmark detector
+    (:func:`detect_in_boxes`); a box without a face is dropped, and two readings of one face
+    (:data:`SAME_FACE_IOU`) kept once, the first (the larger box's).
+
+    Parameters
+    ----------
+    image : path or (H, W, 3) array
+    landmark_detector, face_detector : see :func:`detect`
+    skip : (S, 4) px boxes, optional: faces known already (a video's tracked faces); a face
+        box overlapping one of them by :data:`SAME_FACE_IOU` is neither read nor returned
+    tiles : bool, also search overlapping tiles (:data:`TILES`) with the landmark detector's
+        :data:`QUICK_FACE_DETECTORS` face detector (``face_detector="auto"``; else the one
+        chosen): the small faces of a group photo, which a pass over the whole photo misses
+
+    Returns
+    -------
+    list of :class:`~.result.Detection`, by the centre of their :func:`face_box` from left to
+    right (an empty list: no face).
+
+    >>> from morphable.io.landmark_files import read_pts
+    >>> faces = detect_all("../shared/data/images/breakingbad.jpg")    # two men, the right one annotated
+    >>> truth = read_pts("../shared/data/images/breakingbad.pts")      # a face ~360 px wide
+    >>> [bool(np.median(np.linalg.norm(f.ibug68 - truth, axis=1)) < 15) for f in faces]
+    [False, True]
+    """
+    from .boxes import iou
+
+    img, name = as_image(image)
+    known = [np.asarray(b, dtype=np.float64) for b in (() if skip is None else np.reshape(skip, (-1, 4)))]
+
+    def seen(box, among) -> bool:
+        return bool(among) and float(iou(np.array(among), box).max()) >= SAME_FACE_IOU
+
+    boxes = list(detect_faces(img, landmark_detector=landmark_detector, face_detector=face_detector))
+    if tiles:
+        quick = face_detector
+        if face_detector == "auto":
+            quick = QUICK_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
+        for b in _tile_boxes(img, landmark_detector, quick):
+            if not seen(b, boxes):        # a face of the whole photo's pass found again
+                boxes.append(b)
+    boxes = [b for b in boxes if not seen(b, known)]
+    kept, kept_boxes = [], []
+    for found in detect_in_boxes(img, boxes, landmark_detector=landmark_detector,
+                                 face_detector=face_detector):
+        if found is None or seen(face_box(found), kept_boxes + known):
+            continue
+        kept.append(found)
+        kept_boxes.append(face_box(found))
+    order = np.argsort([(b[0] + b[2]) / 2 for b in kept_boxes], kind="stable")
+    return [kept[i] for i in order]
 
 
 def describe(landmark_detector: str = "auto", face_detector: str = "auto") -> str:

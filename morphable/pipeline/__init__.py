@@ -19,7 +19,8 @@ each usable alone:
 5. :mod:`.batch` — :func:`~.batch.fit_item`, the work function of ``morphable fit-batch``
    (:func:`morphable.batch.run_batch`);
 6. :mod:`.track` — a video's track (:func:`morphable.tracking.track_video`, also
-   ``morphable.track_video``) written to files (:func:`~.track.write_track`).
+   ``morphable.track_video``) written to files (:func:`~.track.write_track`), and every
+   person's (:func:`morphable.tracking.track_footage`): :func:`~.track.write_footage`.
 
 Every problem with an input is an :class:`~morphable.errors.InputError` naming the file.
 Units: mm and degrees; image points in pixels, 0-based, x right, y down.
@@ -30,8 +31,8 @@ from .inputs import (MAX_DETECT_MEGAPIXELS, OUTSIDE_MARGIN, Picture, check_landm
                      pictures, read_landmark_file)
 from .outputs import check_output_paths, write_outputs
 from .refine import refine_fit
-from .track import check_track_folder, write_track
+from .track import check_track_folder, keep_person, write_footage, write_track
 
 __all__ = ["fit_images", "ImageFit", "Picture", "pictures", "read_landmark_file", "check_landmarks",
            "detect_points", "one_landmark_set", "refine_fit", "check_output_paths", "write_outputs",
-           "fit_item", "write_track", "check_track_folder", "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
+           "fit_item", "write_track", "write_footage", "keep_person", "check_track_folder", "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]

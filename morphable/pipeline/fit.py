@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from .inputs import Picture, check_landmarks, detect_points, pictures, read_landmark_file
+from .outputs import check_mesh_kind
 
 __all__ = ["fit_images", "ImageFit", "one_landmark_set"]
 
@@ -48,10 +49,15 @@ class ImageFit:
         """(V, 3) float32, mm: the fitted mesh of ``frame`` (its identity and expression)."""
         return self.fit.vertices(frame)
 
-    def mesh_vertices(self) -> np.ndarray:
-        """(V, 3) float32, mm: the mesh :meth:`write` writes: the fitted frame's for one
-        picture, the shared (or average) identity without expression for several."""
-        return self.vertices(0) if self.n_frames == 1 else self.fit.neutral_vertices()
+    def mesh_vertices(self, kind: str = "neutral"):
+        """The mesh :meth:`write` writes, the same rule for one picture and for several:
+        ``kind`` "neutral" (default): (V, 3) float32 mm, the shared (or average) identity
+        without expression; "expressive": a list of N (V, 3), each frame's face with its
+        expression (in the model frame, without pose)."""
+        check_mesh_kind(kind)
+        if kind == "expressive":
+            return [self.vertices(i) for i in range(self.n_frames)]
+        return self.fit.neutral_vertices()
 
     def images(self) -> list:
         """The N frames' pictures as the texture and overlays take them: photo paths (read
@@ -60,21 +66,25 @@ class ImageFit:
 
     def write(self, mesh=None, report=None, texture=None, overlay=None, *, texture_size: int = 512,
               overlay_style: str | None = "shaded", overlay_crop: float | None = None,
-              refine_render=None) -> list:
+              refine_render=None, mesh_kind: str = "neutral", overlay_mask: bool = False,
+              albedo: bool = True) -> list:
         """Write the fit's files, all or nothing: every output's folder is checked first, each
         file is written atomically, and when one fails those already written are removed.
 
         Parameters
         ----------
         mesh : path, optional
-            The mesh (:meth:`mesh_vertices`; .obj with UVs, .ply, .stl, .off, .glb); with a
-            texture an .obj names it through a material library ``NAME.mtl`` beside it.
+            The mesh (:meth:`mesh_vertices` of ``mesh_kind``: "neutral", the identity without
+            expression, or "expressive", each frame's face, ``NAME_0.obj``, ``NAME_1.obj``, ...
+            for several frames; .obj with UVs, .ply, .stl, .off, .glb); with a texture an .obj
+            names it through a material library ``NAME.mtl`` beside it.
         report : path, optional
             The JSON report: :attr:`report`, plus ``overlays`` (the paths written) and
             ``texture`` (its path, size, fractions observed and mirrored, runtime).
         texture : path, optional
-            A .png UV texture from the pictures (:func:`morphable.texture.extract_texture`,
-            ``texture_size`` texels per side; the model needs UVs).
+            A .png UV texture (the model needs UVs), ``texture_size`` texels per side: for a
+            fit refined photometrically (with ``albedo``) the recovered albedo texture, else
+            the pictures' colours (:func:`morphable.texture.extract_texture`).
         overlay : path, optional
             .png/.jpg: each picture with the fitted mesh (``overlay_style``: "shaded",
             "wireframe" or None for landmarks only) and the landmarks
@@ -82,6 +92,9 @@ class ImageFit:
             by that fraction of its size); several frames: ``NAME_0.png``, ``NAME_1.png``, ...
         refine_render : path, optional
             .png: the first frame's face crop next to its refined render (a refined fit only).
+        overlay_mask : bool
+            Paint the photometric mask on the overlays (a refined fit only): the face pixels
+            the mask leaves out tinted red.
 
         Returns
         -------
@@ -91,14 +104,15 @@ class ImageFit:
 
         return write_outputs(self, mesh, report, texture, overlay, texture_size=texture_size,
                              overlay_style=overlay_style, overlay_crop=overlay_crop,
-                             refine_render=refine_render)
+                             refine_render=refine_render, mesh_kind=mesh_kind,
+                             overlay_mask=overlay_mask, albedo=albedo)
 
 
 def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None,
                refine_options: dict | None = None, camera: str = "affine", focal_px=None,
                n_iterations: int = 4, robust=None, shared_identity: bool = True,
                landmark_detector: str = "auto", face_detector: str = "auto", landmark_std_px=1.0,
-               video_frames: int = 5) -> ImageFit:
+               video_frames: int = 5, face: int | None = None, all_faces: bool = False):
     """Fit a model to one person's face in photos, videos and image arrays, from landmarks
     given or detected.
 
@@ -117,14 +131,22 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
         always detected (their entry must be None).
     model : MorphableModel or name/path for :func:`morphable.load_model`
     refine : None, or the name of a refinement after the landmark fit
-        (:func:`~morphable.pipeline.refine.refine_fit`: a renderer's name, "classical" or
-        "gar", inverts that renderer on each frame; needs the neural extra)
+        (:func:`~morphable.pipeline.refine.refine_fit`, all frames together with one identity:
+        "photometric" (= "classical"), the albedo texture and light in closed form, or "gar";
+        needs torch, the neural extra)
     refine_options : dict, keywords of the refinement (e.g. ``{"steps": 100}``)
     camera, focal_px, n_iterations, robust : see :func:`morphable.fitting.fit_landmarks`
     shared_identity : bool, one identity for all pictures (False: each fitted on its own)
     landmark_detector, face_detector : see :func:`morphable.detection.detect`
     landmark_std_px : float > 0 or "auto", px, the noise of points without a σ of their own
-    video_frames : int >= 1, frames sampled from each video (all of a shorter one)
+    video_frames : int >= 1, frames sampled from each video (all of a shorter one); the
+        person fitted is the largest face of the first of them with a face, found again in
+        the others by their face descriptor (:mod:`morphable.descriptors`; a frame showing only
+        other people is skipped)
+    face : int >= 0, optional: fit face number ``face`` of a single photo or array, its faces
+        numbered from 0 left to right (:func:`morphable.detection.detect_all`); default the
+        largest
+    all_faces : bool, fit every face of a single photo or array, each on its own
 
     A detector that gives each point a σ (the landmark network) has its frames fitted with
     those σ (:func:`morphable.detection.result.landmark_noise`). Frames whose landmarks are
@@ -137,12 +159,16 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     Returns
     -------
     ImageFit: the fit, its report and the fitted pictures. The face fitted is each picture's
-    largest (what :func:`morphable.detection.detect` finds), all as one person.
+    largest (what :func:`morphable.detection.detect` finds), all as one person; a single photo's
+    report then says how many faces its quickest face detector sees (``faces_seen``). With ``all_faces``: a list of
+    ImageFit, one per face from left to right, each report's ``face`` its number, the faces
+    found and its box (px); with ``face``: that face's ImageFit, its report's ``face`` alike.
 
     Raises
     ------
-    InputError naming the input for a bad file, array or setting; FitError when a photo shows
-    no face.
+    InputError naming the input for a bad file, array or setting (``face`` beyond the faces
+    found; ``face`` or ``all_faces`` with landmarks given, several inputs or a video);
+    FitError when a photo shows no face.
 
     Examples
     --------
@@ -173,6 +199,16 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     if int(video_frames) < 1:
         raise InputError(f"video frames must be >= 1, got {video_frames}")
     describe(landmark_detector, face_detector)  # a bad choice fails before any work
+    if isinstance(model, (str, Path)):
+        from ..io.registry import load_model
+
+        model = load_model(str(model))
+    settings = dict(model=model, refine=refine, refine_options=refine_options, camera=camera,
+                    focal_px=focal_px, n_iterations=n_iterations, robust=robust,
+                    shared_identity=shared_identity, landmark_std_px=landmark_std_px)
+    if face is not None or all_faces:
+        return _fit_faces(images, given, face, all_faces, landmark_detector, face_detector, video_frames,
+                          settings)
     items, sources = [], []
     for i, (item, lm) in enumerate(zip(images, given)):
         expanded = pictures(item, i, video_frames)
@@ -180,29 +216,85 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
             raise InputError(f"{item}: landmark files are for photos; a video's frames are detected")
         items += expanded
         sources += [lm] * len(expanded)
-    points, kept, found, skipped = [], [], [], []
+    points, kept, found, skipped, people = [], [], [], [], {}
     for picture, lm in zip(items, sources):
         if lm is None:
             try:
-                found.append(detect_points(picture, landmark_detector, face_detector))
-            except FitError:
+                det = detect_points(picture, landmark_detector, face_detector)
+                if picture.frame is not None:
+                    det = _same_person(picture, det, people, landmark_detector, face_detector)
+            except FitError as e:
                 if picture.frame is None:
                     raise
-                # a video's frame without a face (turned away, occluded) is skipped, not fatal
+                # a video's frame without a face (turned away, occluded), or without the
+                # video's person, is skipped, not fatal
                 skipped.append({"image": picture.label, "time_s": round(picture.frame.time_s, 4),
-                                "reason": "no face found"})
+                                "reason": "no face found" if str(e) != _OTHERS else _OTHERS})
                 continue
-            points.append(found[-1].points)
+            found.append(det)
+            points.append(det.points)
         else:
             points.append(_given_points(lm, picture))
             found.append(None)
         kept.append((picture, lm))
     _check_every_video_kept(items, [p for p, _ in kept])
-    lms = one_landmark_set(points)
-    if isinstance(model, (str, Path)):
-        from ..io.registry import load_model
+    result = _fit_found(kept, points, found, **settings)
+    if any(p.frame is not None for p in items):
+        result.report["video_frames"] = [{"image": p.label, "video": p.frame.source, "frame": p.frame.index,
+                                          "time_s": round(p.frame.time_s, 4)}
+                                         for p in result.pictures if p.frame is not None]
+        result.report["frames_skipped"] = skipped
+    elif len(items) == 1 and sources[0] is None:
+        result.report["faces_seen"] = _faces_seen(items[0], landmark_detector, face_detector)
+    return result
 
-        model = load_model(str(model))
+
+_OTHERS = "only other people's faces"
+
+
+def _same_person(picture: Picture, det, people: dict, landmark_detector: str, face_detector: str):
+    """A video frame's face of the video's person: the largest face of the first frame with a
+    face fixes who (their face descriptor, :mod:`morphable.descriptors`, in ``people`` by
+    video); on later frames the largest face if it is them, else the face of the frame that
+    is, else FitError (the frame shows only other people)."""
+    from ..descriptors import SAME_PERSON_DISTANCE, descriptor_distance, face_descriptors
+    from ..detection import detect_all
+    from ..errors import FitError
+
+    image = picture.pixels()
+    d = face_descriptors(image, [det.ibug68])
+    ref = people.setdefault(picture.frame.source, d)
+    if descriptor_distance(d, ref)[0, 0] < SAME_PERSON_DISTANCE:
+        return det
+    faces = detect_all(image, landmark_detector=landmark_detector, face_detector=face_detector)
+    if faces:
+        dist = descriptor_distance(face_descriptors(image, [f.ibug68 for f in faces]), ref)[:, 0]
+        if dist.min() < SAME_PERSON_DISTANCE:
+            return faces[int(np.argmin(dist))]
+    raise FitError(_OTHERS)
+
+
+def _faces_seen(picture: Picture, landmark_detector: str, face_detector: str) -> int:
+    """How many faces a photo whose largest face was fitted shows: the boxes of the landmark
+    detector's quickest face detector (:data:`morphable.detection.QUICKEST_FACE_DETECTORS`;
+    3 ms, where reading every face costs 0.15 s and 30 MB more), the fitted face among them;
+    the chosen face detector where one is chosen."""
+    from ..detection import QUICKEST_FACE_DETECTORS, detect_faces, resolve_detectors
+
+    if face_detector == "auto":
+        face_detector = QUICKEST_FACE_DETECTORS.get(resolve_detectors(landmark_detector)[0], "auto")
+    boxes = detect_faces(picture.pixels(), landmark_detector=landmark_detector, face_detector=face_detector)
+    return max(1, len(boxes))
+
+
+def _fit_found(kept, points, found, *, model, refine, refine_options, camera, focal_px, n_iterations,
+               robust, shared_identity, landmark_std_px) -> ImageFit:
+    """The fit of the pictures ``kept`` (``[(Picture, landmarks given or None)]``) from their
+    points (each (L, 2) px) and detections (a Detection or None each)."""
+    from ..fitting import fit_landmarks
+    from ..fitting.options import detection_settings
+
+    lms = one_landmark_set(points)
     res = fit_landmarks(model, lms, np.array([p.size for p, _ in kept], dtype=np.float64), camera=camera,
                         focal_px=focal_px, n_iterations=int(n_iterations),
                         robust=robust, shared_identity=shared_identity,
@@ -210,10 +302,6 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
     fitted = [p for p, _ in kept]
     # "auto" may have found a photo's face with the network where the face mesh found none
     extra = {"landmarks": [_source(lm) if lm is not None else d.detector for (_, lm), d in zip(kept, found)]}
-    if any(p.frame is not None for p in items):
-        extra["video_frames"] = [{"image": p.label, "video": p.frame.source, "frame": p.frame.index,
-                                  "time_s": round(p.frame.time_s, 4)} for p in fitted if p.frame is not None]
-        extra["frames_skipped"] = skipped
     states = []
     if refine is not None:
         from .refine import refine_fit
@@ -222,6 +310,51 @@ def fit_images(images, landmarks=None, *, model="sfm", refine: str | None = None
         extra["refine"] = runs
     report = {**res.to_dict(images=[p.label for p in fitted]), **extra}
     return ImageFit(fit=res, report=report, pictures=fitted, refinements=states)
+
+
+def _all_faces(picture: Picture, landmark_detector: str, face_detector: str) -> list:
+    """Every face of one picture, left to right (:func:`morphable.detection.detect_all`, its
+    tiles searched too), after :func:`~.inputs.detect_points`' size check."""
+    from ..detection import detect_all
+    from .inputs import check_detect_size
+
+    check_detect_size(picture)
+    return detect_all(picture.image, landmark_detector=landmark_detector, face_detector=face_detector,
+                      tiles=True)
+
+
+def _fit_faces(images, given, face, all_faces, landmark_detector, face_detector, video_frames, settings):
+    """``fit_images`` with ``face`` or ``all_faces``: one photo's faces, each fitted alone."""
+    from ..detection import face_box
+    from ..errors import FitError
+
+    what = "all_faces" if all_faces else "face"
+    if face is not None and all_faces:
+        raise InputError("give face or all_faces, not both")
+    if len(images) != 1:
+        raise InputError(f"{what}: for one photo, got {len(images)} inputs")
+    if given[0] is not None:
+        raise InputError(f"{what}: for detected faces; landmarks were given")
+    if face is not None and (isinstance(face, bool) or int(face) != face or face < 0):
+        raise InputError(f"face must be a face number >= 0, got {face}")
+    (picture, *more) = pictures(images[0], 0, video_frames)
+    if more or picture.frame is not None:
+        raise InputError(f"{picture.label}: {what} is for photos; a video's faces are tracked "
+                         "(morphable track, morphable.track_footage)")
+    faces = _all_faces(picture, landmark_detector, face_detector)
+    if not faces:
+        raise FitError(f"{picture.label}: no face found")
+    if face is not None and face >= len(faces):
+        raise InputError(f"{picture.label}: face {face} asked for, {len(faces)} "
+                         f"face{'s were' if len(faces) > 1 else ' was'} found (0 to {len(faces) - 1})")
+    chosen = range(len(faces)) if all_faces else [int(face)]
+    results = []
+    for k in chosen:
+        result = _fit_found([(picture, None)], [faces[k].points], [faces[k]], **settings)
+        result.report["face"] = {"index": k, "faces_found": len(faces),
+                                 "box_px": [round(float(v), 2) for v in face_box(faces[k])]}
+        results.append(result)
+    return results if all_faces else results[0]
 
 
 def _as_list(value, item_ndim: int) -> list:

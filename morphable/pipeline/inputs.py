@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Picture", "pictures", "read_landmark_file", "check_landmarks", "detect_points",
+__all__ = ["Picture", "pictures", "read_landmark_file", "check_landmarks", "detect_points", "check_detect_size",
            "MAX_DETECT_MEGAPIXELS", "OUTSIDE_MARGIN"]
 
 MAX_DETECT_MEGAPIXELS = 40.0
@@ -203,6 +203,16 @@ def _read_facemesh_points(path: Path) -> np.ndarray:
         raise InputError(f"{path}: cannot read landmarks ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
 
 
+def check_detect_size(picture: Picture) -> None:
+    """InputError naming a picture larger than :data:`MAX_DETECT_MEGAPIXELS` (face detection
+    on it would take minutes and gigabytes)."""
+    W, H = picture.size
+    mp = W * H / 1e6
+    if mp > MAX_DETECT_MEGAPIXELS:
+        raise InputError(f"{picture.label}: {W}x{H} is {mp:.1f} megapixels, more than the "
+                         f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
+
+
 def detect_points(picture: Picture, landmark_detector: str = "auto", face_detector: str = "auto"):
     """The :class:`~morphable.detection.result.Detection` of a picture's largest face (its
     points, and its σ where the detector gives one).
@@ -219,9 +229,5 @@ def detect_points(picture: Picture, landmark_detector: str = "auto", face_detect
     """
     from ..detection import detect
 
-    W, H = picture.size
-    mp = W * H / 1e6
-    if mp > MAX_DETECT_MEGAPIXELS:
-        raise InputError(f"{picture.label}: {W}x{H} is {mp:.1f} megapixels, more than the "
-                         f"{MAX_DETECT_MEGAPIXELS:.0f} megapixels face detection takes; downscale it or give landmarks")
+    check_detect_size(picture)
     return detect(picture.image, landmark_detector=landmark_detector, face_detector=face_detector)

@@ -14,7 +14,19 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["check_output_paths", "write_outputs"]
+__all__ = ["check_output_paths", "write_outputs", "MESH_KINDS", "check_mesh_kind", "albedo_texture", "resize_texture",
+           "paint_mask"]
+
+
+MESH_KINDS = ("neutral", "expressive")
+"""What a fit's mesh file holds: the person's identity without expression, or each frame's
+face with its expression."""
+
+
+def check_mesh_kind(kind: str) -> None:
+    """InputError unless ``kind`` is one of :data:`MESH_KINDS`."""
+    if kind not in MESH_KINDS:
+        raise InputError(f"mesh kind must be one of {', '.join(MESH_KINDS)}, got {kind!r}")
 
 
 def check_output_paths(mesh=None, report=None, texture=None, overlay=None,
@@ -43,15 +55,22 @@ def check_output_paths(mesh=None, report=None, texture=None, overlay=None,
 
 def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
                   texture_size: int = 512, overlay_style: str | None = "shaded",
-                  overlay_crop: float | None = None, refine_render=None) -> list:
+                  overlay_crop: float | None = None, refine_render=None,
+                  mesh_kind: str = "neutral", overlay_mask: bool = False,
+                  albedo: bool = True) -> list:
     """Write what :meth:`morphable.pipeline.ImageFit.write` writes (see there); returns the
     paths written."""
     from ..io.atomic import atomic_path
 
     check_output_paths(mesh, report, texture, overlay, refine_render)
+    check_mesh_kind(mesh_kind)
     fit = result.fit
     if refine_render and not result.refinements:
         raise InputError(f"{refine_render}: the fit was not refined, so there is no render of it")
+    if overlay_mask and not result.refinements:
+        raise InputError(f"{overlay}: the fit was not refined, so there is no photometric mask "
+                         "to draw")
+    recovered = albedo_texture(result) if albedo else None
     if texture and fit.model.uv is None:
         raise InputError(f"{fit.model.name}: the model has no UV coordinates, so a texture "
                          "cannot be written")
@@ -68,28 +87,47 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
 
             paths = overlay_paths(overlay, fit.n_frames)
             for i, (path, image) in enumerate(zip(paths, result.images())):
+                if overlay_mask:
+                    image = paint_mask(image, result.refinements[i])
                 written.append(save_overlay(path, image, fit, i, mesh=overlay_style, crop=overlay_crop))
             content["overlays"] = [str(p) for p in paths]
         uv, tuv = fit.model.uv, fit.model.triangle_uv
         tex = None
-        if texture:
+        if texture and recovered is not None:
+            from ..raster import save_image_png
+
+            written.append(Path(save_image_png(texture, resize_texture(recovered, texture_size))))
+            tex = recovered                 # the model's own UVs go with it
+            content["texture"] = {"path": str(texture), "size": texture_size,
+                                  "kind": "albedo (photometric refinement)"}
+        elif texture:
             from ..texture import extract_texture, save_texture
 
             tex = extract_texture(fit, result.images(), size=texture_size)
             written.append(save_texture(tex, texture))
             uv, tuv = tex.uv, tex.triangle_uv
-            content["texture"] = {"path": str(texture), "size": texture_size,
+            content["texture"] = {"path": str(texture), "size": texture_size, "kind": "photo",
                                   "observed": float(tex.observed[tex.layout].mean()),
                                   "mirrored": float(tex.mirrored[tex.layout].mean()),
                                   "runtime_ms": tex.runtime_ms}
         if mesh:
             from ..io.mesh import write_mesh
 
+            from ..overlay import overlay_paths
+
             material = texture if tex is not None and Path(mesh).suffix.lower() == ".obj" else None
-            written.append(write_mesh(mesh, result.mesh_vertices(), fit.model.triangles, uv, tuv,
-                                      texture=material))
-            if material:
-                written.append(Path(mesh).with_suffix(".mtl"))
+            if mesh_kind == "neutral":
+                meshes = [(mesh, write_mesh(mesh, result.mesh_vertices(), fit.model.triangles, uv, tuv,
+                                            texture=material))]
+            else:
+                meshes = [(path, write_mesh(path, v, fit.model.triangles, uv, tuv, texture=material))
+                          for path, v in zip(overlay_paths(mesh, fit.n_frames),
+                                             result.mesh_vertices(mesh_kind))]
+            for path, done in meshes:
+                written.append(done)
+                if material:
+                    written.append(Path(path).with_suffix(".mtl"))
+            content["mesh"] = {"kind": mesh_kind, "paths": [str(p) for p, _ in meshes]}
         if report:
             with atomic_path(report) as tmp:
                 Path(tmp).write_text(json.dumps(content, indent=2))
@@ -101,3 +139,43 @@ def write_outputs(result, mesh=None, report=None, texture=None, overlay=None, *,
             Path(path).unlink(missing_ok=True)
         raise
     return [Path(p) for p in written]
+
+
+def albedo_texture(result):
+    """(S, S, 3) float in [0, 1]: the albedo texture a photometric refinement recovered (in
+    the model's own UV layout), or None when the fit was not refined so."""
+    states = getattr(result, "refinements", None) or []
+    tex = states[0].appearance.get("texture") if states else None
+    return None if tex is None else np.clip(tex[0].double().numpy(), 0.0, 1.0)
+
+
+def resize_texture(image, size: int) -> np.ndarray:
+    """(S, S, 3) float [0, 1] -> (size, size, 3), bilinear."""
+    from PIL import Image
+
+    planes = [np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c], dtype=np.float32))
+                         .resize((size, size), Image.BILINEAR)) for c in range(3)]
+    return np.clip(np.stack(planes, -1), 0.0, 1.0)
+
+
+def paint_mask(image, state) -> np.ndarray:
+    """A photo (path or array) with the face pixels its refinement's photometric mask
+    (``state.mask`` over the crop ``state.crop``) weighs under 0.5 tinted red -> (H, W, 3)
+    uint8."""
+    from ..detection.images import as_image
+
+    photo = as_image(image)[0].astype(np.float64)
+    H, W = photo.shape[:2]
+    left, top, side = state.crop
+    R = state.mask.shape[0]
+    ys, xs = np.mgrid[0:H, 0:W]
+    i = np.floor((ys + 0.5 - top) * R / side).astype(int)
+    j = np.floor((xs + 0.5 - left) * R / side).astype(int)
+    inside = (i >= 0) & (i < R) & (j >= 0) & (j < R)
+    face = np.zeros((H, W))
+    kept = np.zeros((H, W))
+    face[inside] = state.coverage[i[inside], j[inside]] > 0.5
+    kept[inside] = state.mask[i[inside], j[inside]]
+    out = (face * (kept < 0.5))[..., None]
+    photo = photo * (1 - 0.6 * out) + out * 0.6 * np.array([255.0, 0, 0])
+    return np.clip(np.round(photo), 0, 255).astype(np.uint8)

@@ -1,38 +1,45 @@
 """The optional step after the landmark fit: a refinement of the fit on the pictures' pixels.
 
-:func:`refine_fit` takes the refinement by its name. Today every name is a renderer's
-(:func:`morphable.renderer_plugins.get_renderer`: ``"classical"``, ``"gar"``, or another
-installed plugin's): each frame is refined in turn by inverting that renderer
-(:func:`morphable.refinement.refine`). A refinement of another kind takes its own name here,
-with its own options.
+:func:`refine_fit` takes the refinement by its name: ``"photometric"`` (the classical
+renderer's inversion: albedo texture and SH light in closed form, docs/photometric.md;
+``"classical"`` is the same), or another installed renderer plugin's name (``"gar"``,
+:func:`morphable.renderer_plugins.get_renderer`). All frames are refined together through
+:func:`morphable.refinement.refine_shared`: one identity shared by the frames, each frame's
+expression and pose.
 """
 from __future__ import annotations
 
-__all__ = ["refine_fit"]
+__all__ = ["refine_fit", "METHODS", "renderer_of"]
+
+METHODS = {"photometric": "classical"}
+"""Refinement names that are not a renderer's own -> the renderer they invert."""
+
+
+def renderer_of(method: str) -> str:
+    """The renderer a refinement method inverts (``"photometric"`` -> ``"classical"``)."""
+    return METHODS.get(method, method)
 
 
 def refine_fit(fit, pictures, method: str, **options) -> tuple:
-    """Refine a landmark fit on its pictures.
+    """Refine a landmark fit on its pictures, all frames together.
 
     Parameters
     ----------
     fit : FitResult of N frames (:func:`morphable.fitting.fit_landmarks`)
     pictures : the N :class:`~morphable.pipeline.inputs.Picture` objects of its frames, in order
-    method : str, a renderer's name: every frame refined by inverting it
-    **options : keywords of :func:`morphable.refinement.refine` (``steps``, ``weights``,
-        ``renderer_options``, ``features``, ``resolution``, ``seed``, ``trace_every``)
+    method : str, "photometric" (= "classical") or a renderer's name ("gar")
+    **options : keywords of :func:`morphable.refinement.refine_shared` (``steps``,
+        ``weights``, ``renderer_options``, ``features``, ``resolution``, ``seed``,
+        ``trace_every``, ``recast_every``)
 
     Returns
     -------
-    (FitResult, runs, states): the refined fit; per frame the refinement's report
-    (``photometric_loss`` per step, ``runtime_s``, ...) and its
-    :class:`~morphable.refinement.Refinement` (for :func:`morphable.refinement.edit`).
+    (FitResult, runs, states): the refined fit (one identity for all frames); per frame the
+    refinement's report (``photometric_loss`` per step, ``mask_coverage``, ``runtime_s``,
+    ...) and its :class:`~morphable.refinement.Refinement` (for
+    :func:`morphable.refinement.edit`).
     """
-    from ..refinement import refine
+    from ..refinement import refine_shared
 
-    runs, states = [], []
-    for i, picture in enumerate(pictures):
-        fit, run, state = refine(picture.pixels(), fit, method, frame=i, return_state=True, **options)
-        runs.append(run)
-        states.append(state)
-    return fit, runs, states
+    return refine_shared([p.pixels() for p in pictures], fit, renderer_of(method),
+                         labels=[p.label for p in pictures], **options)

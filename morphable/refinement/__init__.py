@@ -37,9 +37,10 @@ imported only when a refinement runs.
 """
 from .crop import crop_camera, crop_image, face_crop, face_frame, pad_like_ffhq
 from .editing import Refinement, edit
-from .inversion import refine, refine_frames
+from .inversion import refine, refine_frames, refine_shared
+from .mask import MIN_COVERAGE, pixel_weights
 from .loss import DEFAULT_WEIGHTS, NO_PHOTOMETRIC, landmark_trust, parse_loss_weights
 
 __all__ = ["face_frame", "face_crop", "crop_camera", "crop_image", "pad_like_ffhq", "landmark_trust",
-           "refine", "refine_frames", "edit", "Refinement", "DEFAULT_WEIGHTS", "NO_PHOTOMETRIC",
+           "refine", "refine_shared", "refine_frames", "pixel_weights", "MIN_COVERAGE", "edit", "Refinement", "DEFAULT_WEIGHTS", "NO_PHOTOMETRIC",
            "parse_loss_weights"]

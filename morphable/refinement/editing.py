@@ -18,7 +18,9 @@ class Refinement:
 
     renderer : the renderer object; appearance : dict of its tensors (recovered);
     crop : (left, top, side) px; camera : crop camera (refined pose); target (R, R, 3) the
-    image crop; rendered (R, R, 3) the final render; fit : refined FitResult.
+    image crop; rendered (R, R, 3) the final render; fit : refined FitResult; frame : the
+    frame of ``fit`` it is; mask : (R, R) the photometric mask's weights in [0, 1];
+    coverage : (R, R) the fitted face's coverage of the crop pixels in [0, 1].
     """
 
     renderer: object
@@ -28,10 +30,13 @@ class Refinement:
     target: np.ndarray
     rendered: np.ndarray
     fit: object
+    frame: int = 0
+    mask: np.ndarray | None = None
+    coverage: np.ndarray | None = None
 
 
 def edit(state: Refinement, *, yaw=None, pitch=None, roll=None, expression: dict | None = None,
-         identity_scale: float = 1.0, frame: int = 0) -> np.ndarray:
+         identity_scale: float = 1.0, frame: int | None = None) -> np.ndarray:
     """Re-render a reconstruction under another pose and/or expression.
 
     Parameters
@@ -41,6 +46,7 @@ def edit(state: Refinement, *, yaw=None, pitch=None, roll=None, expression: dict
     expression : {name: weight} replacing those expression coefficients (e.g.
         ``{"happiness": 0.8}`` for the SFM blendshapes); others keep their recovered value
     identity_scale : multiplies alpha (0: the mean face under the recovered appearance)
+    frame : the frame of the fit whose expression is edited (default: the state's)
 
     Returns
     -------
@@ -48,6 +54,7 @@ def edit(state: Refinement, *, yaw=None, pitch=None, roll=None, expression: dict
     """
     fit = state.fit
     model = fit.model
+    frame = state.frame if frame is None else int(frame)
     beta = np.array(fit.expression[frame], dtype=np.float64)
     names = list(model.expression_names)
     for k, v in (expression or {}).items():

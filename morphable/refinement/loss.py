@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import InputError
 from .geometry import project_points
 
-__all__ = ["DEFAULT_WEIGHTS", "NO_PHOTOMETRIC", "landmark_trust", "loss_weights", "parse_loss_weights",
+__all__ = ["DEFAULT_WEIGHTS", "NO_PHOTOMETRIC", "LANDMARK_UNIT_PX", "landmark_trust", "loss_weights", "parse_loss_weights",
            "perceptual_features", "loss_function"]
 
 DEFAULT_WEIGHTS = {"photo": 1.0, "feat": 0.05, "eps": 1e-3, "lmk": 1.0, "alpha": 1e-3,
@@ -28,6 +28,10 @@ sweep on the photo-dressed validation sets chose ``lmk`` 10 (``--loss-weight lmk
 command lines, :func:`parse_loss_weights`); it is an option, not the default, because on james,
 AFLW2000-3D and the London set it did worse than 1 (docs/neural.md, "Loss weights for detected
 landmarks")."""
+
+LANDMARK_UNIT_PX = 64
+"""Landmark residuals count in pixels of a crop this wide (the resolution the weights were
+chosen at), so that ``lmk`` means the same at every crop resolution."""
 
 NO_PHOTOMETRIC = {"photo": 0.0, "feat": 0.0}
 """Weight overrides that turn the photometric terms off: a refinement by the landmark and prior
@@ -53,10 +57,10 @@ def landmark_trust(fit, frame: int = 0) -> float:
     return float((s2 + (k * MODEL_STD_MM) ** 2) / (s2 + (k * m[frame]) ** 2))
 
 
-def loss_weights(fit, frame: int, weights: dict | None = None) -> dict:
-    """:data:`DEFAULT_WEIGHTS` with the overrides ``weights``, ``lmk`` scaled by
-    :func:`landmark_trust`."""
-    lam = {**DEFAULT_WEIGHTS, **(weights or {})}
+def loss_weights(fit, frame: int, weights: dict | None = None, renderer=None) -> dict:
+    """:data:`DEFAULT_WEIGHTS` with the renderer's ``default_weights``, then the overrides
+    ``weights``, ``lmk`` scaled by :func:`landmark_trust`."""
+    lam = {**DEFAULT_WEIGHTS, **getattr(renderer, "default_weights", {}), **(weights or {})}
     return {**lam, "lmk": lam["lmk"] * landmark_trust(fit, frame)}
 
 
@@ -108,32 +112,72 @@ def perceptual_features(features, renderer):
     return (lambda img: list(net(img))), f"TorchScript {path.name}"
 
 
-def loss_function(problem, unknowns, renderer, weights: dict, features=None):
-    """The loss of ``unknowns`` on ``problem`` -> callable () -> (total, terms, image): the
-    weighted total, each term (scalar tensors; names as in ``weights``) and the render
-    (1, 3, R, R). ``features``: a feature network of :func:`perceptual_features` or None."""
+def loss_function(problem, unknowns, frame: int, renderer, weights: dict, features=None):
+    """The loss of frame ``frame`` of ``unknowns`` on its ``problem`` -> callable ``(mask,
+    full=False) -> (total, terms, image, normals)``: the weighted total, each term (scalar
+    tensors; names as in ``weights``; the identity prior ``alpha`` is the caller's, once for
+    all frames), the render and the normals. ``mask`` (1, 1, R, R) weighs the photometric
+    term's pixels; landmark residuals count in pixels of a :data:`LANDMARK_UNIT_PX` crop,
+    whatever the resolution. ``features``: a feature network of :func:`perceptual_features`
+    or None. ``problem`` is a callable giving the frame's current problem (it is re-cast).
+
+    A ``pixelwise`` renderer without perceptual features, on a crop of one sample per pixel,
+    is compared on the surface points the face pixels saw at the last cast, as a (1, 3, 1, N)
+    strip with their (N, 3) normals (per-pixel appearance maps (1, C, R, R) gathered alike):
+    each point is projected with the current shape and pose and the crop sampled there
+    (bilinear), so that the photometric term pulls the points' positions by the image's
+    gradients as well as their normals by the shading, at a third of a full render's cost.
+    With ``full=True``, or otherwise, the whole crop: (1, 3, R, R) and (R, R, 3), each pixel
+    against the surface point it saw at the last cast."""
+    import torch
+    import torch.nn.functional as F
+
+    from ..raster import interpolate
+
     from ..raster import normal_map
+    from ..raster.normal_maps import sample_normals
 
-    model, u = problem.fit.model, unknowns
-    target = problem.image
-    mask = renderer.photometric_mask(problem.coverage)
-    target_feats = [f.detach() for f in features(target)] if features else []
+    model, u, i = problem().fit.model, unknowns, frame
+    target_feats = [f.detach() for f in features(problem().image)] if features else []
 
-    def losses():
-        verts = model.vertices(u.alpha, u.beta)
-        Rt = u.rotation()
-        n = normal_map(verts, model.triangles, vis=problem.vis, rotation=Rt)      # (R, R, 3)
-        img = renderer.render(n.permute(2, 0, 1)[None], u.appearance)
-        photo = ((img - target).pow(2) * mask).sum() / (3 * mask.sum())
+    def strip(a, idx, R):
+        if torch.is_tensor(a) and a.dim() == 4 and a.shape[2:] == (R, R):
+            return a.reshape(*a.shape[:2], 1, R * R)[..., idx]
+        return a
+
+    def losses(mask, full: bool = False):
+        p = problem()
+        R = p.resolution
+        verts = model.vertices(u.alpha, u.betas[i])
+        Rt = u.rotation(i)
+        pixelwise = (getattr(renderer, "pixelwise", False) and not features and not full
+                     and p.vis.supersample == 1)
+        region = mask * renderer.photometric_mask(p.coverage)
+        if pixelwise:
+            idx = torch.as_tensor(p.vis.pixels)
+            n = sample_normals(verts, model.triangles, p.vis, rotation=Rt, foreground=True)
+            app = {k: strip(v, idx, R) for k, v in u.appearances[i].items()}
+            img = renderer.render(n.T[None, :, None, :], app)
+            xy = project_points(p.camera, interpolate(p.vis, verts, foreground=True), Rt,
+                                u.translation(i))
+            grid = ((xy + 0.5) * (2.0 / R) - 1.0).to(p.image.dtype)[None, None]
+            target = F.grid_sample(p.image, grid, mode="bilinear", padding_mode="border",
+                                   align_corners=False)
+            m = strip(region, idx, R)
+        else:
+            n = normal_map(verts, model.triangles, vis=p.vis, rotation=Rt)      # (R, R, 3)
+            img = renderer.render(n.permute(2, 0, 1)[None], u.appearances[i])
+            target, m = p.image, region
+        photo = ((img - target).pow(2) * m).sum() / (3 * m.sum()).clamp_min(1e-6)
         terms = {"photo": photo}
         if features:
             terms["feat"] = sum((a - b).pow(2).mean() for a, b in zip(features(img), target_feats))
-        terms.update(renderer.appearance_prior(u.appearance))
-        uv = project_points(problem.camera, verts[problem.landmark_ids], Rt, u.translation())
-        terms["lmk"] = (uv - problem.landmarks).pow(2).sum(1).mean()
-        terms["alpha"] = u.alpha.pow(2).sum()
-        terms["beta"] = u.beta.pow(2).sum()
+        terms.update(renderer.appearance_prior(u.appearances[i]))
+        uv = project_points(p.camera, verts[p.landmark_ids], Rt, u.translation(i))
+        unit = LANDMARK_UNIT_PX / p.resolution
+        terms["lmk"] = ((uv - p.landmarks) * unit).pow(2).sum(1).mean()
+        terms["beta"] = u.betas[i].pow(2).sum()
         total = sum(weights[k] * v for k, v in terms.items())
-        return total, terms, img
+        return total, terms, img, n
 
     return losses

@@ -20,8 +20,8 @@
    Its strength is a cut-off frequency in Hz (``smoothing_hz``): motion slower than it passes,
    faster detector jitter is removed. 0 turns it off.
 
-Also ``morphable.track_video``; ``morphable track`` writes its result with
-:func:`morphable.pipeline.write_track`.
+Also ``morphable.track_video``; :func:`morphable.pipeline.write_track` writes its result.
+``morphable track`` follows every face of a video instead (:mod:`morphable.tracking.footage`).
 
 Units: angles in degrees, translations in mm, image points in pixels (0-based, x right, y down).
 """
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FitError, InputError
+from ..errors import FitError, InputError
 
 __all__ = ["TrackResult", "track_video", "write_track_glb", "fixed_identity_model", "carried_box",
            "fit_frames", "chunk_frames", "smooth_trajectories", "solve_prior", "DEFAULT_SMOOTHING_HZ",
@@ -212,8 +212,8 @@ def write_track_glb(track: TrackResult, path) -> Path:
 
     Units in the file: metres. Returns ``path``; InputError when no frame was tracked.
     """
-    from .camera import euler_to_matrix
-    from .io.gltf import write_animated_glb
+    from ..camera import euler_to_matrix
+    from ..io.gltf import write_animated_glb
 
     if track.fit is None or not track.tracked.any():
         raise InputError(f"{path}: no tracked frame to animate")
@@ -276,7 +276,7 @@ def _detect(image, box, landmark_detector: str, face_detector: str):
     carried is the detector's own (:attr:`Detection.box`, in the convention its ``box=``
     reads: the landmark network's framing) where it gives one, else the points' box
     (:func:`carried_box`)."""
-    from .detection import detect
+    from ..detection import detect
 
     try:
         det = detect(image, landmark_detector=landmark_detector, face_detector=face_detector,
@@ -292,9 +292,9 @@ def _frame_settings(found: list) -> dict:
     points): ``morphable fit``'s for detections (their σ, the 3D convention of 478-point
     detectors: :func:`morphable.fitting.options.detection_settings`), the detector's model
     error alone for bare points."""
-    from .detection.result import Detection
-    from .fitting.noise import DETECTED_MODEL_STD_MM
-    from .fitting.options import detection_settings
+    from ..detection.result import Detection
+    from ..fitting.noise import DETECTED_MODEL_STD_MM
+    from ..fitting.options import detection_settings
 
     if isinstance(found[0], Detection):
         return detection_settings(found, len(found[0].points))
@@ -318,8 +318,8 @@ def fit_frames(fixed, points, image_size) -> list:
     where there are no points or the fit misses them by more than :data:`LOST_RMSE_FRACTION`
     of the face's size (the face is lost).
     """
-    from .detection.result import Detection
-    from .fitting import fit_landmarks
+    from ..detection.result import Detection
+    from ..fitting import fit_landmarks
 
     out = [None] * len(points)
     # each frame's (L, 2) px points: a Detection's, or the bare points
@@ -379,12 +379,12 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
     Returns a :class:`TrackResult`. InputError for a bad file or a video in which no sampled
     frame shows a face; frames in which the face is lost are reported, never an error.
     """
-    from .camera import Camera, euler_to_matrix
-    from .detection import describe
-    from .fitting.noise import effective_std
-    from .fitting.result import FitResult
-    from .pipeline.fit import fit_images
-    from .video import iter_frames, probe
+    from ..camera import Camera, euler_to_matrix
+    from ..detection import describe
+    from ..fitting.noise import effective_std
+    from ..fitting.result import FitResult
+    from ..pipeline.fit import fit_images
+    from ..video import iter_frames, probe
 
     if int(identity_frames) < 1:
         raise InputError(f"identity frames must be >= 1, got {identity_frames}")
@@ -395,7 +395,7 @@ def track_video(path, *, model="sfm", identity_frames: int = 9, identity: str = 
     describe(landmark_detector, face_detector)     # a bad choice fails before any work
     info = probe(path)
     if isinstance(model, (str, Path)):
-        from .io.registry import load_model
+        from ..io.registry import load_model
 
         model = load_model(str(model))
     res = fit_images(path, model=model, landmark_detector=landmark_detector,
