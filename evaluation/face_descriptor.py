@@ -9,6 +9,8 @@
   detector and 5-point predictor put its points 0.3-1.1 px (mean per point) from these
   positions; the descriptors of a photo's crop and of the photo itself are 0.23-0.40 apart
   (four people, eight photos).
+- :func:`point_descriptors`: images with their iBUG-68 points known (e.g. synthetic faces'
+  exact labels): dlib's chip cut around the five points taken from them.
 - :func:`photo_descriptors`: original photos, dlib's way: its HOG face detector (the largest
   face), its 5-point shape predictor and its chip.
 
@@ -20,7 +22,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["DLIB_FIVE", "as_uint8_images", "aligned_descriptors", "photo_descriptors"]
+__all__ = ["DLIB_FIVE", "as_uint8_images", "aligned_descriptors", "point_descriptors", "photo_descriptors"]
 
 DLIB_FIVE = (45, 42, 36, 39, 33)
 """The iBUG-68 points (0-based) at dlib's five alignment points, in its order."""
@@ -75,6 +77,25 @@ def aligned_descriptors(images, model: str = "sfm", batch_size: int = 64) -> np.
         shapes = [dlib.full_object_detections([shape]) for _ in up]
         out.extend(np.asarray(d[0]) for d in net.compute_face_descriptor(up, shapes))
     return np.array(out, np.float64).reshape(N, 128)
+
+
+def point_descriptors(images, points68) -> np.ndarray:
+    """(N, 128) dlib descriptors of (N, H, W, 3) uint8 images (or a list of them) whose iBUG-68
+    points (N, 68, 2) px are known: dlib's 150 px chip is cut around the five points
+    :data:`DLIB_FIVE` of each (no detection). Unlike
+    :func:`morphable.descriptors.face_descriptors` (all 68 points, finite), it takes labels
+    with undefined rows, as SFM's synthetic faces have (two NaN rows)."""
+    import dlib
+
+    net = _dlib_models()[0]
+    out = []
+    for img, pts in zip(images, np.asarray(points68, np.float64)):
+        five = pts[list(DLIB_FIVE)]
+        lo, hi = five.min(0), five.max(0)
+        rect = dlib.rectangle(*(int(round(v)) for v in (lo[0], lo[1], hi[0], hi[1])))
+        shape = dlib.full_object_detection(rect, [dlib.point(int(round(x)), int(round(y))) for x, y in five])
+        out.append(np.asarray(net.compute_face_descriptor(np.ascontiguousarray(img), shape)))
+    return np.array(out, np.float64).reshape(-1, 128)
 
 
 def photo_descriptors(paths, upsample: int = 1) -> np.ndarray:

@@ -77,7 +77,8 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                   huber_k: float = 1.345, shared_identity: bool = True,
                   landmark_std_px=1.0, model_std_mm=MODEL_STD_MM,
                   definition_std_mm=None, focal_px=None,
-                  contour=None, convention=None, detected=None, dtype=np.float64) -> FitResult:
+                  contour=None, convention=None, detected=None, identity_prior_mean=None,
+                  identity_prior_std=None, dtype=np.float64) -> FitResult:
     """Fit a morphable model to 2D landmarks of one or more images.
 
     Parameters
@@ -153,6 +154,15 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
         (:func:`~morphable.fitting.problem.detector_looks`), as a detector's face-shaped errors
         do not average away over the frames of one face. It does not set ``model_std_mm``
         (:func:`~morphable.fitting.noise.frame_model_std` gives the detector's).
+    identity_prior_mean : None or (K,) array-like, std units
+        The centre of the identity's Gaussian prior: the prior term becomes
+        ``prior_weight |alpha - identity_prior_mean|^2`` (None: 0, the model's mean face). For
+        an identity guessed from elsewhere, e.g. a face descriptor
+        (``evaluation.bench_descriptor_prior``); its first ``n_identity`` values are used.
+    identity_prior_std : None or (K,) array-like > 0, std units
+        The identity prior's standard deviation per mode (None: 1, the model's own): the
+        prior weight of mode k becomes ``prior_weight / identity_prior_std[k]^2``, e.g. the
+        residual spread of a guessed ``identity_prior_mean``.
     dtype : numpy dtype of the returned meshes (the fit itself runs in float64)
 
     Returns
@@ -187,7 +197,8 @@ def fit_landmarks(model, landmarks, image_size, *, scheme=None, camera: str = "a
                          landmark_std_px=landmark_std_px, model_std_mm=model_std_mm,
                          definition_std_mm=definition_std_mm, focal_px=focal_px,
                          contour=contour, convention=convention, detected=detected,
-                         dtype=dtype)
+                         identity_prior_mean=identity_prior_mean,
+                         identity_prior_std=identity_prior_std, dtype=dtype)
     y, given, size = as_frames(landmarks, mask, image_size)
     # the scheme and the model's landmark rows are prepared once per model, scheme and
     # process: not part of a fit's time

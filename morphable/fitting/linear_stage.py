@@ -68,9 +68,12 @@ def _affine_linear_stage(pb: Problem, n_linear: int) -> State:
             expr = combine(Bg, beta) @ P.transpose(0, 2, 1) if E else 0.0
             # the offsets are solved at the mean face's size here (the prior on c, not on
             # delta: a starting point the nonlinear stage corrects)
-            target = base - expr
+            # solved as the step from the prior's mean, whose own prior is centred at 0
+            mean = pb.prior_mean[None, :pb.n_identity]
+            target = base - expr - combine(Ag, mean) @ P.transpose(0, 2, 1)
             c = (solve_identity_offsets(pb, P, target, W, Ag) if pb.D else
                  solve_identity(P, target, W, Ag, pb.prior, pb.shared, pb.gram))
+            c[:, :pb.n_identity] += mean
             alpha = from_coefficients(pb, c)
         if E:
             ident = identity_points(pb, Ag, alpha) @ P.transpose(0, 2, 1)

@@ -367,7 +367,7 @@ def _gradient(pb, st, rows, r):
             act[:, -E:] = (st.beta <= 0) & (gf[:, -E:] > 0)
             gf[act] = 0.0
     K = ga.shape[-1]
-    return gf, ga + pb.prior[:K] * st.alpha[:, :K], act
+    return gf, ga + pb.prior[:K] * (st.alpha[:, :K] - pb.prior_mean[:K]), act
 
 
 def _across_rows(pb: Problem, J):
@@ -405,7 +405,7 @@ def _group_cost(pb, st, frame_cost, sel=slice(None)):
     g = frame_cost.sum(0, keepdims=True) if pb.shared else frame_cost
     if pb.K:
         alpha = st.alpha if pb.shared else st.alpha[sel]
-        g = g + (pb.prior * alpha ** 2).sum(1)
+        g = g + (pb.prior * (alpha - pb.prior_mean) ** 2).sum(1)
     return g
 
 

@@ -63,6 +63,8 @@ class FitOptions:
     contour: str | None = None
     convention: str | None = None
     detected: object = None
+    identity_prior_mean: object = None
+    identity_prior_std: object = None
     dtype: object = np.float64
 
     def __post_init__(self):
@@ -106,6 +108,20 @@ class FitOptions:
             focal = np.asarray(self.focal_px, dtype=np.float64)
             if not (np.all(np.isfinite(focal)) and np.all(focal > 0)):
                 raise InputError(f"focal_px: must be positive, got {self.focal_px}")
+        if self.identity_prior_mean is not None:
+            mean = np.array(self.identity_prior_mean, dtype=np.float64)
+            if mean.ndim != 1 or not np.all(np.isfinite(mean)):
+                raise InputError(f"identity_prior_mean: expected finite (K,) identity coefficients, "
+                                 f"got shape {mean.shape}")
+            mean.setflags(write=False)
+            object.__setattr__(self, "identity_prior_mean", mean)
+        if self.identity_prior_std is not None:
+            std = np.array(self.identity_prior_std, dtype=np.float64)
+            if std.ndim != 1 or not np.all(np.isfinite(std) & (std > 0)):
+                raise InputError(f"identity_prior_std: expected positive finite (K,) values, got "
+                                 f"{np.shape(self.identity_prior_std)} {std if std.size < 8 else ''}")
+            std.setflags(write=False)
+            object.__setattr__(self, "identity_prior_std", std)
         # frozen: the normalised values replace the given ones once, here
         object.__setattr__(self, "definition_std_mm", definition_std_mm)
         object.__setattr__(self, "model_std_mm", model_std_mm)

@@ -125,6 +125,18 @@ class Problem:
         self.offset_std = definition_std_mm[self.offset_landmarks] if self.offsets else np.zeros(0)
         self.prior = np.ones(K + self.D)
         self.prior[:K] = self.prior_weight * detector_looks(options.frame_detected(N), self.shared)
+        # the Gaussian prior's centre in the same coordinates (offsets stay centred at 0)
+        self.prior_mean = np.zeros(K + self.D)
+        if options.identity_prior_mean is not None:
+            mean = options.identity_prior_mean
+            if len(mean) < K:
+                raise InputError(f"identity_prior_mean: {len(mean)} coefficients, the fit uses {K}")
+            self.prior_mean[:K] = mean[:K]
+        if options.identity_prior_std is not None:
+            std = options.identity_prior_std
+            if len(std) < K:
+                raise InputError(f"identity_prior_std: {len(std)} values, the fit uses {K}")
+            self.prior[:K] /= std[:K] ** 2
         self.A, self.B, self.AT, self.BT = basis_rows(bank, K, E)
         # None where no frame gives an outline point (51-point annotations, detectors that
         # drop the jaw): then nothing slides and the outline is never computed
