@@ -291,7 +291,8 @@ def test_refine_frames_takes_the_face_meshs_478_points():
     verts, reports = refine_frames(model, images, lms, "classical", steps=2)
     assert verts.shape == (2, model.n_vertices, 3) and np.isfinite(verts).all()
     # the classical renderer's own photometric weight (ClassicalRenderer.default_weights)
-    assert all(r["loss_weights"]["photo"] == 300.0 for r in reports)
+    from morphable.raster.classical_renderer import ClassicalRenderer
+    assert all(r["loss_weights"]["photo"] == ClassicalRenderer.default_weights["photo"] for r in reports)
     d = [[np.linalg.norm(v - f["vertices"], axis=1).mean() for f in faces] for v in verts]
     assert d[0][0] < d[0][1] and d[1][1] < d[1][0]
     # weight overrides reach every frame's refinement

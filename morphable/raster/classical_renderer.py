@@ -61,15 +61,14 @@ class ClassicalRenderer(RendererBase):
 
     resolution = None
     learning_rates = {"sh": 0.02, "albedo": 0.01}
-    default_weights = {"feat": 0.0, "photo": 300.0}
+    default_weights = {"feat": 0.0, "photo": 100.0}
     """The perceptual term off; the photometric term (a mean squared intensity, ~1e-4 when
-    fitted) weighted 300 against the landmark term and priors: on validation people
-    (``evaluation.bench_photometric`` faces of seed 7, not the reported seed; the frames'
-    losses then averaged, since summed: 1.27 mm with 300 for 5 frames), 5 frames each
-    (2 people), the identity's error was 1.39 mm with weight 1 (the pixels then barely move
-    it: as with 0), 1.35 with 300, 1.35 with 1000, 1.47 with 3000, 1.62 with 10000; 3 frames
-    (3 people) 1.56 with 1, 1.50 with 1000; 1 frame (4 people) 2.92 with 1, 2.98 with 100,
-    2.96 with 1000, against 2.82 for the landmark fit alone (docs/photometric.md)."""
+    fitted) weighted 100 against the landmark term and priors, chosen on the Florence
+    protocol's validation subjects rendered by the physically based renderer (4 ICT subjects,
+    ``--renderer pbr``; mean over the three conditions: 1.492 mm with weight 1 (c553fcf), 1.326 with 30,
+    1.285 with 100, 1.315 with 300; the landmark fit 1.488), never on james (held out):
+    docs/photometric_results.md. Synthetic Lambertian faces (``evaluation.bench_photometric``,
+    an inverse crime) had suggested 300."""
     pixelwise = True
 
     def __init__(self, albedo=(0.7, 0.5, 0.4), light_direction=(0.3, 0.4, 1.0), ambient=0.4,
