@@ -88,8 +88,8 @@ class ShotDetector:
         """Sorted frame indices at which a new shot starts (0 not among them)."""
         dark = np.asarray(self._dark, dtype=bool)
         # a content cut beside a dark frame is a fade's edge: the fade's own cut stands for it
-        near_dark = [c for c in self._cuts if not (dark[c] or (c > 0 and dark[c - 1]))]
-        return sorted({c for c in near_dark + self._fade_cuts if 0 < c < self.n_frames})
+        away_from_dark = [c for c in self._cuts if not (dark[c] or (c > 0 and dark[c - 1]))]
+        return sorted({c for c in away_from_dark + self._fade_cuts if 0 < c < self.n_frames})
 
 
 def shots_from_cuts(cuts, n_frames: int) -> list:
