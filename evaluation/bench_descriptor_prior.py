@@ -26,14 +26,13 @@ descriptor, not the 3D shape; the synthetic table is the shape measure.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from morphable.errors import InputError, one_line_errors
-from morphable.io.atomic import atomic_path
+from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from morphable.metrics import umeyama
 
@@ -305,8 +304,7 @@ def main(argv=None):
         lines += [f"| {k} | {r['left']:.2f} | {r['right']:.2f} | {r['both']:.2f} |"
                   for k, r in report["james"].items()]
     a.report.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(a.report) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(a.report, report)
     print("\n".join(lines))
     print(f"\nwrote {a.report}")
     return 0

@@ -23,14 +23,13 @@ No peer reports this; it tests that expression does not leak into identity on re
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
-from morphable.io.atomic import atomic_path
+from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .bench_alignment import add_refine_arguments, data_root, refine_options, refined_methods, refiner
@@ -164,8 +163,7 @@ def main(argv=None):
                      f"{f(row['not_in_calibration']['identification_rate'], '{:.1%}')} | {row['failures']} | "
                      f"{f(row['median_ms'], '{:.0f}')} |")
     a.report.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(a.report) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(a.report, report)
     print("\n".join(lines))
     print(f"\nwrote {a.report}")
     return 0
