@@ -125,7 +125,7 @@ FAULTS = (
            "tests/test_footage.py::test_shots_tracks_and_people"),
           "every track its own person: a person is not joined across cuts"),
     Fault("footage-fades-not-cut", "morphable/shots.py",
-          "sorted({c for c in near_dark + self._fade_cuts", "sorted({c for c in near_dark",
+          "sorted({c for c in away_from_dark + self._fade_cuts", "sorted({c for c in away_from_dark",
           ("tests/test_footage.py::test_cuts_and_fades_are_found_and_a_pan_is_not_a_cut",),
           "a fade through black is not a shot boundary"),
     Fault("conftest-keeps-the-environment", "tests/conftest.py",
