@@ -88,20 +88,19 @@ def _ellipse(shape, centre, axes) -> np.ndarray:
 
 
 def hand_region(points, shape) -> np.ndarray:
-    """(H, W) bool: an ellipse over the mouth and the image-right cheek, sized by the face
-    (``points`` (68, 2) px): from the mouth's middle towards the jaw's point 12, half as wide
-    as the jaw."""
-    width = np.linalg.norm(points[16] - points[0])
-    centre = 0.6 * points[48:68].mean(0) + 0.4 * points[12]
-    return _ellipse(shape, centre, (0.32 * width, 0.22 * width))
+    """(H, W) bool: an ellipse over the mouth and the image-right cheek, centred on the
+    mouth's image-right corner (iBUG 54), 0.9 x 0.6 times the distance between the eyes' outer
+    corners (36, 45); the inner points only, which every detector and model has."""
+    width = np.linalg.norm(points[45] - points[36])
+    return _ellipse(shape, points[54], (0.45 * width, 0.3 * width))
 
 
 def skin_colour(image, points) -> np.ndarray:
-    """(3,) the median colour of the cheeks: the photo's pixels between the eyes' lower lids
-    and the mouth, inside the jaw (iBUG 2-14)."""
+    """(3,) the median colour of the cheeks and nose: the photo's pixels between the eyes'
+    lower lids and the mouth, and between the eyes' outer corners (iBUG 36, 45)."""
     H, W = image.shape[:2]
     top, bottom = points[[40, 41, 46, 47], 1].max(), points[48:60, 1].min()
-    left, right = points[2:7, 0].max(), points[10:15, 0].min()
+    left, right = points[36, 0], points[45, 0]
     ys, xs = np.mgrid[0:H, 0:W] + 0.5
     cheeks = (ys > top) & (ys < bottom) & (xs > left) & (xs < right)
     return np.median(np.asarray(image)[cheeks], 0)
@@ -154,6 +153,7 @@ def write_png16(path, image) -> Path:
 
 
 VARIANTS = {
+    "as is": (lambda im, pts: im, "the photo itself as a PNG: the variants' reference"),
     "grey": (lambda im, pts: grey(im), "RGB equal channels, the photo's luma"),
     "16-bit PNG": (lambda im, pts: im, "the photo as a 16-bit RGB PNG (x 257), read back by fit"),
     "saturated x3": (lambda im, pts: saturated(im), "over-exposed: x3, clipped at 255"),
@@ -164,6 +164,7 @@ VARIANTS = {
 """Hard-case makers, each with its one-line description: (photo (H, W, 3) uint8, its 68
 points) -> (H, W, 3) uint8. The 16-bit variant is the photo itself, written by
 :func:`write_png16`."""
+PAIR = "saturated x3, 2nd of 2 frames"
 REGIONS = {"hard shadow x0.3": shadow_region, "hand (skin colour)": hand_region,
            "sunglasses": glasses_region}
 """The variants that hide part of the face, and the pixels they change."""
@@ -177,10 +178,11 @@ def _finite(value) -> bool:
     return not isinstance(value, float) or bool(np.isfinite(value))
 
 
-def fit_case(photo: Path, pts, steps: int, folder: Path, region=None) -> tuple[dict, np.ndarray | None]:
-    """Fit ``photo`` as ``morphable fit PHOTO [--landmarks PTS] --refine photometric --steps
-    STEPS --out-mesh ... --overlay ... --overlay-mask`` does (:func:`morphable.fit_images`,
-    :meth:`~morphable.pipeline.ImageFit.write`).
+def fit_case(photos, pts, steps: int, folder: Path, region=None) -> tuple[dict, np.ndarray | None]:
+    """Fit ``photos`` (paths) as ``morphable fit PHOTOS [--landmarks PTS...] --refine
+    photometric --steps STEPS --out-mesh ... --overlay ... --overlay-mask`` does
+    (:func:`morphable.fit_images`, :meth:`~morphable.pipeline.ImageFit.write`), one identity for
+    all; the figures are the last photo's.
 
     Returns
     -------
@@ -196,11 +198,11 @@ def fit_case(photo: Path, pts, steps: int, folder: Path, region=None) -> tuple[d
     from morphable.pipeline.outputs import mask_in_photo, paint_mask
 
     try:
-        result = fit_images(str(photo), None if pts is None else [str(pts)], refine="photometric",
-                            refine_options={"steps": steps})
+        result = fit_images([str(p) for p in photos], pts and [str(p) for p in pts],
+                            refine="photometric", refine_options={"steps": steps})
     except (InputError, FitError) as e:
-        return {"error": str(e)}, None
-    run, fit, state = result.report["refine"][0], result.fit, result.refinements[0]
+        return {"error": str(e).replace(f"{folder}/", "")}, None
+    run, fit, state = result.report["refine"][-1], result.fit, result.refinements[-1]
     mesh = folder / "fit.obj"
     result.write(mesh=mesh, report=folder / "fit.json")
     try:
@@ -215,25 +217,33 @@ def fit_case(photo: Path, pts, steps: int, folder: Path, region=None) -> tuple[d
                "refine_s": run["runtime_s"],
                "nan": not (_finite(run) and all(np.isfinite(np.asarray(a, np.float64)).all() for a in arrays)),
                "mesh_finite": mesh_finite}
-    image = result.images()[0]
+    image = result.images()[-1]
     if region is not None:
         face, kept = mask_in_photo(state, region.shape)
         on = (face > 0) & region
         figures["occluder_left_out"] = round(float((kept[on] < 0.5).mean()), 3) if on.any() else None
-    return figures, draw_overlay(paint_mask(image, state), fit, mesh=None, landmarks=False, crop=0.1)
+    return figures, draw_overlay(paint_mask(image, state), fit, fit.n_frames - 1, mesh=None,
+                                 landmarks=False, crop=0.1)
+
+
+def face_crop(image, points, margin: float = 0.3) -> np.ndarray:
+    """(h, w, 3): ``image`` cut to the box of ``points`` (N, 2) px widened by ``margin`` of its
+    size (the tile of a case whose fit stopped)."""
+    lo, hi = points.min(0), points.max(0)
+    x0, y0 = np.maximum(np.floor(lo - margin * (hi - lo)), 0).astype(int)
+    x1, y1 = np.ceil(hi + margin * (hi - lo)).astype(int)
+    return np.asarray(image)[y0:y1, x0:x1]
 
 
 def contact_sheet(tiles, labels, path, height: int = 260, columns: int = 4) -> Path:
-    """The tiles ((h, w, 3) uint8, or None: a grey tile) scaled to ``height`` px, each labelled,
-    ``columns`` to a row, written as JPEG."""
+    """The tiles ((h, w, 3) uint8) scaled to ``height`` px, each labelled, ``columns`` to a
+    row, written as JPEG."""
     from PIL import Image
 
     from morphable.overlay import label_faces
 
     scaled = []
     for tile in tiles:
-        if tile is None:
-            tile = np.full((height, height, 3), 90, np.uint8)
         im = Image.fromarray(tile)
         scaled.append(np.asarray(im.resize((round(im.width * height / im.height), height), Image.LANCZOS)))
     width = max(t.shape[1] for t in scaled)
@@ -263,24 +273,29 @@ def evaluate(steps: int = 100, root: Path | None = None) -> tuple[dict, list, li
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for name in PHOTOS:
-            figures, tile = fit_case(folder / name, None, steps, tmp)
+            figures, tile = fit_case([folder / name], None, steps, tmp)
             cases[name] = {"why": PHOTOS[name], **figures}
-            tiles.append(tile)
+            tiles.append(read_image(folder / name) if tile is None else tile)
         base = read_image(folder / BASE)
         points = detect(base).ibug68
         pts = tmp / "base.pts"
         write_pts(pts, points)
         for name, (make, why) in VARIANTS.items():
-            photo = tmp / f"variant{len(cases)}.png"
+            photo = tmp / f"{name.split()[0]}.png"
+            image = make(base, points)
             if name == "16-bit PNG":
-                write_png16(photo, make(base, points))
+                write_png16(photo, image)
             else:
-                Image.fromarray(make(base, points)).save(photo)
+                Image.fromarray(image).save(photo)
             region = REGIONS[name](points, base.shape[:2]) if name in REGIONS else None
-            figures, tile = fit_case(photo, pts, steps, tmp, region)
+            figures, tile = fit_case([photo], [pts], steps, tmp, region)
             cases[name] = {"why": why, **figures}
-            tiles.append(tile)
-    labels = [f"{name}\n" + ("stopped: " + c["error"].split(": ")[-1][:30] if "error" in c else
+            tiles.append(face_crop(image, points) if tile is None else tile)
+        # several frames: the one the mask leaves nearly empty keeps its landmark fit
+        figures, tile = fit_case([tmp / "as.png", tmp / "saturated.png"], [pts, pts], steps, tmp)
+        cases[PAIR] = {"why": "the saturated photo fitted together with the photo as is", **figures}
+        tiles.append(face_crop(saturated(base), points) if tile is None else tile)
+    labels = [f"{name}\n" + ("stopped: mask under 5 %" if "error" in c else
                              f"mask {100 * c['mask_coverage']:.0f} %, res {c['photometric_residual']:.3f}")
               for name, c in cases.items()]
     return {"steps": steps, "base": BASE, "cases": cases}, tiles, labels
