@@ -46,6 +46,7 @@ PHOTOS = {BASE: "clean-shaven, even light: the photo the variants below are made
           "037_03.jpg": "a full beard and moustache (the set's clearest beard)"}
 """The real photos fitted, with why (looked at by eye: no photo of the set wears glasses)."""
 SEED = 54
+"""The hand's noise."""
 SHADOW_GAIN = 0.3
 """The cast shadow's darkening (x0.3)."""
 OVEREXPOSURE = 3.0
@@ -144,7 +145,8 @@ def write_png16(path, image) -> Path:
     def chunk(kind, data):
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
-    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, 2, 0, 0, 0))
+    header = struct.pack(">IIBBBBB", W, H, 16, 2, 0, 0, 0)       # 16 bits, RGB
+    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
                            + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
     return Path(path)
 
@@ -162,6 +164,7 @@ VARIANTS = {
 points) -> (H, W, 3) uint8. The 16-bit variant is the photo itself, written by
 :func:`write_png16`."""
 PAIR = "saturated x3, 2nd of 2 frames"
+"""The case of several frames, one of which the mask leaves nearly empty."""
 REGIONS = {"hard shadow x0.3": shadow_region, "hand (skin colour)": hand_region,
            "sunglasses": glasses_region}
 """The variants that hide part of the face, and the pixels they change."""
@@ -175,7 +178,7 @@ def _finite(value) -> bool:
     return not isinstance(value, float) or bool(np.isfinite(value))
 
 
-def fit_case(photos, pts, steps: int, folder: Path, region=None) -> tuple[dict, np.ndarray | None]:
+def fit_case(photos, pts, steps: int, folder: Path, region=None) -> tuple:
     """Fit ``photos`` (paths) as ``morphable fit PHOTOS [--landmarks PTS...] --refine
     photometric --steps STEPS --out-mesh ... --overlay ... --overlay-mask`` does
     (:func:`morphable.fit_images`, :meth:`~morphable.pipeline.ImageFit.write`), one identity for
