@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["check_output_paths", "write_outputs", "MESH_KINDS", "check_mesh_kind", "albedo_texture", "resize_texture",
-           "paint_mask"]
+           "paint_mask", "mask_in_photo"]
 
 
 MESH_KINDS = ("neutral", "expressive")
@@ -154,12 +154,31 @@ def resize_texture(image, size: int) -> np.ndarray:
 
 def paint_mask(image, state) -> np.ndarray:
     """A photo (path or array) with the face pixels its refinement's photometric mask
-    (``state.mask`` over the crop ``state.crop``) weighs under 0.5 tinted red -> (H, W, 3)
-    uint8."""
+    (:func:`mask_in_photo`) weighs under 0.5 tinted red -> (H, W, 3) uint8."""
     from ..detection.images import as_image
 
     photo = as_image(image)[0].astype(np.float64)
-    H, W = photo.shape[:2]
+    face, kept = mask_in_photo(state, photo.shape[:2])
+    out = (face * (kept < 0.5))[..., None]
+    photo = photo * (1 - 0.6 * out) + out * 0.6 * np.array([255.0, 0, 0])
+    return np.clip(np.round(photo), 0, 255).astype(np.uint8)
+
+
+def mask_in_photo(state, shape) -> tuple[np.ndarray, np.ndarray]:
+    """A refinement's crop-sized mask carried to its photo's pixels (nearest crop pixel).
+
+    Parameters
+    ----------
+    state : :class:`~morphable.refinement.Refinement` (``mask``, ``coverage`` (R, R) over the
+        crop ``crop`` = (left, top, side) px)
+    shape : (H, W) of the photo
+
+    Returns
+    -------
+    face : (H, W) float, 1 where the fitted face covers over half the crop pixel, else 0
+    kept : (H, W) float in [0, 1], the mask's weight (0 outside the crop)
+    """
+    H, W = shape
     left, top, side = state.crop
     R = state.mask.shape[0]
     ys, xs = np.mgrid[0:H, 0:W]
@@ -170,6 +189,4 @@ def paint_mask(image, state) -> np.ndarray:
     kept = np.zeros((H, W))
     face[inside] = state.coverage[i[inside], j[inside]] > 0.5
     kept[inside] = state.mask[i[inside], j[inside]]
-    out = (face * (kept < 0.5))[..., None]
-    photo = photo * (1 - 0.6 * out) + out * 0.6 * np.array([255.0, 0, 0])
-    return np.clip(np.round(photo), 0, 255).astype(np.uint8)
+    return face, kept
