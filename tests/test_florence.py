@@ -448,7 +448,8 @@ def test_command_on_james(james_paths, tmp_path):
     # cooperative video (two frames, 1 px noise) well below it, of the outdoor one (two frames,
     # 3 px noise) not the mean face; eos near it, not it
     mean_face = mm["mean-face", "cooperative"]
-    assert mm["mean-face", "outdoor"] == mean_face and 1.0 < mean_face < 1.25
+    # the same mesh and scan: equal but for the last bits of multithreaded sums (seen in CI)
+    assert mm["mean-face", "outdoor"] == pytest.approx(mean_face, rel=1e-9) and 1.0 < mean_face < 1.25
     assert mm["ours", "cooperative"] < 0.92 * mean_face
     assert abs(mm["ours", "outdoor"] - mean_face) > 0.05 and mm["ours", "outdoor"] < 2.0 * mean_face
     assert all(0.85 * mean_face < mm["eos", c] < 1.15 * mean_face and mm["eos", c] != mean_face
