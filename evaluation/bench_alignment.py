@@ -5,10 +5,12 @@ Methods, each run on every photo of a set:
 - ``dlib``: dlib's HOG face detector and 68-point shape predictor;
 - ``facemesh``: mediapipe's 478-point face mesh, mapped to iBUG-68 by
   :data:`morphable.detection.facemesh.FACEMESH_TO_IBUG68`;
-- ``ours-dlib+gar``, ``ours-facemesh+classical``, ...: that fit refined by inverting a renderer
-  (:func:`morphable.refinement.refine`, ``--steps`` Adam steps; the GAR's weights from
-  ``--gar-weights`` or the committed ones), scored the same way — whether photometric
-  refinement moves the 68 points towards or away from the ground truth;
+- ``ours+photometric``, ``ours-dlib+gar``, ``ours-facemesh+classical``, ...: that fit refined
+  as ``morphable fit --refine photometric`` (``classical`` is the same) or ``--refine gar``
+  refines it (:func:`morphable.pipeline.refine.refine_fit`, ``--steps`` Adam steps, the
+  default loss weights unless ``--loss-weight``; the GAR's weights from ``--gar-weights`` or
+  the committed ones), scored the same way — whether photometric refinement moves the 68
+  points towards or away from the ground truth;
 - ``network``: the landmark network's own 68 rows (``landmark_detector="network"``, its
   weights from ``$MORPHABLE_LANDMARK_WEIGHTS`` or the committed ones; by name only);
 - ``fused``: the network's and the face mesh's points fused by their uncertainty
@@ -67,7 +69,7 @@ from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .peers_3ddfa import add_dir_argument, unavailable
 
-__all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "YAW_BINS", "data_root", "refiner",
+__all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "REFINEMENTS", "YAW_BINS", "data_root", "refiner",
            "refined_methods", "add_refine_arguments", "refine_options", "load_aflw2000", "load_300w",
            "box_size", "eye_distance", "nme", "yaw_bins", "yaw_table", "dataset_boxes", "aflw_angles",
            "run_method", "main"]
@@ -84,18 +86,26 @@ files are there."""
 
 
 def _fitted(method: str) -> bool:
-    """Whether ``method`` is one of our fits (scored by its projected points) or a detector."""
-    return method == "ours" or method.startswith("ours-")
+    """Whether ``method`` is one of our fits, refined or not (scored by its projected points),
+    or a detector."""
+    return method.partition("+")[0] == "ours" or method.startswith("ours-")
+
+
+REFINEMENTS = ("photometric", "classical", "gar")
+"""The refinements a fitted method may be followed by (``ours+photometric``): the names of
+``morphable fit --refine`` (:func:`morphable.pipeline.refine.refine_fit`; ``classical`` is
+``photometric``)."""
 
 
 def refined_methods(methods) -> tuple:
-    """``ours-*`` methods of ``methods`` followed by ``+classical`` / ``+gar``: those fits
-    refined by inverting a renderer (not run by default: seconds per photo)."""
-    return tuple(f"{m}+{r}" for m in methods if m.startswith("ours-") for r in ("classical", "gar"))
+    """``ours`` and ``ours-*`` methods of ``methods`` followed by ``+photometric`` /
+    ``+classical`` / ``+gar``: those fits refined as ``morphable fit --refine`` refines them
+    (not run by default: seconds per photo)."""
+    return tuple(f"{m}+{r}" for m in methods if _fitted(m) for r in REFINEMENTS)
 
 
-REFINED = refined_methods(METHODS)
-"""The refined fits of :data:`METHODS`."""
+REFINED = refined_methods(METHODS + NETWORK_METHODS)
+"""The refined fits of :data:`METHODS` and :data:`NETWORK_METHODS`."""
 YAW_BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, np.inf))
 """``|yaw|`` bins, degrees: [0, 30], (30, 60], (60, ...) (3DDFA's benchmark code puts the few
 photos beyond 90 degrees into the last bin)."""
@@ -204,17 +214,23 @@ def aflw_angles(euler_deg) -> np.ndarray:
 def refiner(renderer: str, steps: int = 100, renderer_options: dict | None = None,
             loss_weights: dict | None = None):
     """``fit -> refined fit`` for the photo ``img``: a callable ``(img, fit) -> fit`` that
-    inverts ``renderer`` ("" for none: the fit unchanged) for ``steps`` Adam steps, made
-    with ``renderer_options[renderer]`` (e.g. ``{"gar": {"weights": path}}``), with the
-    refinement's loss weights overridden by ``loss_weights``
-    (:data:`morphable.refinement.DEFAULT_WEIGHTS`)."""
+    refines the fit as ``morphable fit --refine renderer`` does
+    (:func:`morphable.pipeline.refine.refine_fit`; ``renderer`` "" for none: the fit
+    unchanged) for ``steps`` Adam steps, the renderer made with ``renderer_options[name]``
+    (e.g. ``{"gar": {"weights": path}}``), the refinement's loss weights overridden by
+    ``loss_weights`` (:data:`morphable.refinement.DEFAULT_WEIGHTS`)."""
     if not renderer:
         return lambda img, fit: fit
-    from morphable.refinement import refine
-    from morphable.renderer_plugins import get_renderer
+    from morphable.pipeline.inputs import Picture
+    from morphable.pipeline.refine import refine_fit, renderer_of
 
-    r = get_renderer(renderer, **(renderer_options or {}).get(renderer, {}))
-    return lambda img, fit: refine(img, fit, r, steps=steps, weights=loss_weights)[0]
+    options = (renderer_options or {}).get(renderer_of(renderer))
+
+    def refined(img, fit):
+        picture = Picture("photo", img, (img.shape[1], img.shape[0]))
+        return refine_fit(fit, [picture], renderer, steps=steps, weights=loss_weights,
+                          renderer_options=options)[0]
+    return refined
 
 
 def add_refine_arguments(p) -> None:

@@ -43,7 +43,8 @@ NETWORK_METHODS = ("ours-network", "eos-network", "ours-fused")
 mesh's (``landmark_detector="fused"``, the default where both can run); chosen by name, not run
 by default."""
 REFINED = refined_methods(METHODS + NETWORK_METHODS)
-"""The refined fits (``+classical``: the photometric fit, ``+gar``), also of the network's points."""
+"""The refined fits (``+photometric`` or ``+classical``: ``morphable fit --refine photometric``;
+``+gar``), also of the network's points."""
 CALIBRATION_PEOPLE = 20
 """The first people of the set, whose colours the scheme calibration's renders wore."""
 

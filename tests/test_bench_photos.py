@@ -83,6 +83,7 @@ def test_refined_method_scores_the_refined_fit(data_dir, tmp_path):
     rows = json.loads((tmp_path / "r.json").read_text())["aflw2000"]["methods"]
     plain, refined = rows["ours-facemesh"], rows["ours-facemesh+classical"]
     assert refined["failures"] == plain["failures"] == 0
+    assert refined["pose_mae_deg"].keys() == plain["pose_mae_deg"].keys()      # a fit: its pose scored
     # three Adam steps move the fit a little: a different, nearby score
     assert refined["mean_percent"] is None or np.isfinite(refined["mean_percent"])
     a = [b["nme_percent"] for b in plain["bins"] if b["nme_percent"] is not None]
@@ -125,3 +126,24 @@ def test_refine_options_carry_the_gar_region(tmp_path):
         p.parse_args(["--gar-region", "hair"])
     with pytest.raises(InputError, match="--loss-weight 'lmk=-1'"):
         refine_options(p.parse_args(["--loss-weight", "lmk=-1"]))
+
+
+def test_refined_methods_refine_as_the_cli_does(monkeypatch):
+    from evaluation.bench_alignment import REFINED, _fitted, refiner
+
+    assert {"ours+photometric", "ours-fused+photometric", "ours-dlib+gar"} <= set(REFINED)
+    assert not any(m.startswith(("dlib+", "fused+")) for m in REFINED)    # detectors: no fit to refine
+    assert _fitted("ours+photometric") and not _fitted("fused")
+    calls = []
+
+    def refine_fit(fit, pictures, method, **options):
+        calls.append((fit, pictures, method, options))
+        return "refined fit", [], []
+    monkeypatch.setattr("morphable.pipeline.refine.refine_fit", refine_fit)
+    img = np.zeros((4, 6, 3), np.uint8)
+    assert refiner("")(img, "fit") == "fit"
+    assert refiner("photometric", 7, {"classical": {"a": 1}}, {"photo": 100.0})(img, "fit") == "refined fit"
+    (fit, pictures, method, options), = calls
+    assert fit == "fit" and method == "photometric" and pictures[0].size == (6, 4)
+    assert pictures[0].pixels() is img
+    assert options == {"steps": 7, "weights": {"photo": 100.0}, "renderer_options": {"a": 1}}
