@@ -175,9 +175,11 @@ def test_a_known_face_is_fit_closer_than_the_landmark_start(sfm):
 
     def err(f):
         return np.linalg.norm(f.neutral_vertices(np.float64) - truth, axis=1).mean()
-    # 3.93 -> 3.56 mm at the default photometric weight (100) when written; a wrong sign or a
-    # pixel term that drifts the shape lands above the start
-    assert err(new) < 0.95 * err(fit), (err(fit), err(new))
+    # 3.93 -> 3.77 mm at the defaults (photometric weight 300, albedo prior 0.5; 3.56 with the
+    # stronger albedo prior 4 of before, which this Lambertian image model rewards and the
+    # physically based validation frames did not); a wrong sign or a pixel term that drifts
+    # the shape lands above the start
+    assert err(new) < 0.97 * err(fit), (err(fit), err(new))
     # one identity for the three frames, as the fit's identity
     np.testing.assert_array_equal(new.frame_identity, np.tile(new.identity, (3, 1)))
     assert all(not r["fallback"] and r["mask_coverage"] > 0.5 for r in reports)
