@@ -354,3 +354,23 @@ def test_gar_renderer_takes_the_inverter_beside_its_weights(tmp_path):
     paired = GARRenderer(weights=tmp_path / "generator.pt")
     assert paired.inverter.source == str(tmp_path / "inverter_tiny.pt")
     assert GARRenderer(weights=tmp_path / "generator.pt", inverter=None).inverter is None
+
+
+def test_a_wide_padding_blur_is_the_gaussian_to_a_grey_level(monkeypatch):
+    # the padding of a 1000-px crop blurs by 20 px on a copy reduced 5 times: within a grey level
+    # of the full-resolution Gaussian it replaces
+    from scipy.ndimage import gaussian_filter
+
+    import morphable.refinement.crop as crop_module
+
+    rng = np.random.default_rng(3)
+    photo = rng.integers(0, 256, size=(300, 420, 3), dtype=np.uint8)
+    photo[:, :200] = (220, 60, 30)
+    box = (-300.0, -350.0, 700.0, 650.0)
+    fast, shift = crop_module.pad_like_ffhq(photo, box)
+    monkeypatch.setattr(crop_module, "_wide_blur",
+                        lambda f, sigma: gaussian_filter(f, [sigma, sigma, 0]))
+    exact, exact_shift = crop_module.pad_like_ffhq(photo, box)
+    assert shift == exact_shift and fast.shape == exact.shape
+    assert np.abs(fast.astype(int) - exact.astype(int)).max() <= 1
+    assert np.abs(fast.astype(int) - exact.astype(int)).mean() < 0.1
