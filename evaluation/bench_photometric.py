@@ -17,7 +17,9 @@ Rows (each person fitted with one shared identity over its F frames):
   (``photo`` weight 0: landmarks and priors in the crop cameras), what the pixels add is
   measured against this;
 - ``photometric``: then :func:`morphable.refinement.refine_shared` with the classical
-  renderer (``--steps`` Adam steps, one torch thread).
+  renderer (``--steps`` Adam steps, one torch thread);
+- ``photometric + GAR`` (with ``--gar``): the same loop with the GAR as its renderer (the
+  committed weights and inverter, the GAR's default loss weights), as ``--refine gar``.
 
 Metrics averaged over the people: ``neutral_mm`` (mean vertex distance of the identity without
 expression from the true one, model frame, mm), ``frames_mm`` (mean over the frames of the
@@ -62,19 +64,28 @@ def _errors(model, fit, person) -> tuple[float, float]:
 
 
 def run_bench(people: int = 6, frames=(1, 5), *, steps: int = 100, image_size: int = 256,
-              landmark_noise: float = 1.0, seed: int = 2024, weights=None, progress=True) -> dict:
-    """The table of the module docstring -> {"F frames": {row: {metric: value}}, ...}."""
+              landmark_noise: float = 1.0, seed: int = 2024, weights=None, gar: bool = False,
+              progress=True) -> dict:
+    """The table of the module docstring -> {"F frames": {row: {metric: value}}, ...};
+    ``weights`` override the classical renderer's loss weights, ``gar`` adds the GAR's row."""
     from morphable.fitting import fit_landmarks
     from morphable.refinement import refine_shared
     from neural.faces.renders import SyntheticFaces
 
     faces = SyntheticFaces(resolution=image_size)
     model = faces.model
+    # (row, renderer, loss weight overrides)
+    refinements = [("landmarks-refit", "classical", {**(weights or {}), "photo": 0.0}),
+                   ("photometric", "classical", weights)]
+    if gar:
+        from morphable.renderer_plugins import get_renderer
+
+        refinements.append(("photometric + GAR", get_renderer("gar"), None))
     out = {}
     for F in frames:
         rng = np.random.default_rng(seed)
         rows = {k: {"neutral_mm": [], "frames_mm": [], "s_per_frame": []}
-                for k in ("mean face", "landmark-only", "landmarks-refit", "photometric")}
+                for k in ("mean face", "landmark-only", *(r[0] for r in refinements))}
         for k in range(people):
             person = synthetic_person(faces, rng, F)
             lm = person["landmarks"] + rng.normal(0, landmark_noise, person["landmarks"].shape)
@@ -86,16 +97,13 @@ def run_bench(people: int = 6, frames=(1, 5), *, steps: int = 100, image_size: i
             rows["mean face"]["frames_mm"].append(float(np.mean(
                 [np.linalg.norm(mean - v, axis=1).mean() for v in person["vertices"]])))
             rows["mean face"]["s_per_frame"].append(0.0)
-            t = time.perf_counter()
-            refit, _, _ = refine_shared(list(person["images"]), fit, "classical", steps=steps,
-                                        weights={**(weights or {}), "photo": 0.0})
-            refit_secs = (time.perf_counter() - t) / F
-            t = time.perf_counter()
-            new, _, _ = refine_shared(list(person["images"]), fit, "classical", steps=steps,
-                                      weights=weights)
-            secs = (time.perf_counter() - t) / F
-            for name, f, s in (("landmark-only", fit, 0.0), ("landmarks-refit", refit, refit_secs),
-                               ("photometric", new, secs)):
+            fits = [("landmark-only", fit, 0.0)]
+            for name, renderer, w in refinements:
+                t = time.perf_counter()
+                new, _, _ = refine_shared(list(person["images"]), fit, renderer, steps=steps,
+                                          weights=w)
+                fits.append((name, new, (time.perf_counter() - t) / F))
+            for name, f, s in fits:
                 n_mm, f_mm = _errors(model, f, person)
                 rows[name]["neutral_mm"].append(n_mm)
                 rows[name]["frames_mm"].append(f_mm)
@@ -103,7 +111,8 @@ def run_bench(people: int = 6, frames=(1, 5), *, steps: int = 100, image_size: i
             if progress:
                 print(f"{F} frame(s), person {k + 1}/{people}: neutral "
                       + ", ".join(f"{n} {r['neutral_mm'][-1]:.2f}" for n, r in rows.items())
-                      + f" mm; {secs:.2f} s/frame", file=sys.stderr)
+                      + f" mm; {rows['photometric']['s_per_frame'][-1]:.2f} s/frame",
+                      file=sys.stderr)
         out[f"{F} frames"] = {n: {m: round(float(np.mean(v)), 3) for m, v in r.items()}
                               for n, r in rows.items()}
     return out
@@ -131,6 +140,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=2024)
     p.add_argument("--loss-weight", nargs="+", metavar="KEY=VALUE", default=[],
                    help="overrides of the refinement's loss weights")
+    p.add_argument("--gar", action="store_true",
+                   help="add the row of the same loop with the GAR as its renderer")
     p.add_argument("--report", help="output JSON")
     args = p.parse_args(argv)
     from morphable.refinement import parse_loss_weights
@@ -139,7 +150,7 @@ def main(argv=None) -> int:
         raise InputError("--people and --frames must be >= 1, --steps >= 0")
     result = run_bench(args.people, args.frames, steps=args.steps, image_size=args.image_size,
                        landmark_noise=args.landmark_noise, seed=args.seed,
-                       weights=parse_loss_weights(args.loss_weight))
+                       weights=parse_loss_weights(args.loss_weight), gar=args.gar)
     result = {"command": "python -m evaluation.bench_photometric " + " ".join(argv or sys.argv[1:]),
               "results": result}
     print(format_table(result["results"]))
