@@ -16,10 +16,11 @@ synthetic faces on the GPU machine's cores from the kit of :mod:`neural.gpu_trav
 
 A recipe is a list of stages; the jobs of a stage run at the same time, each a ``python -m``
 command of this package with its own time limit (``--max-minutes``; the runner kills a job
-that overruns it by ``GRACE_MINUTES``). Side by side was meant to fill the GPU's idle time
-between the small networks' kernel launches; on the first run (an H200, three GARs) each
-trained at 0.4 s per step of 64, far below the estimate, and one job alone was not measured
-(docs/history.md, "The GPU recipe and its first run"; docs/gpu_runs.md). While a job runs, its newest weights are
+that overruns it by ``GRACE_MINUTES``). The ``gar`` recipe gives each job a stage of its own
+by default: side by side (``--side-by-side``) was meant to fill the GPU's idle time between
+the small networks' kernel launches, but on the first run (an H200, three GARs together) each
+trained at 0.4 s per step of 64, far below the estimate (docs/history.md, "The GPU recipe and
+its first run"; docs/gpu_runs.md). While a job runs, its newest weights are
 copied into the output folder every ``POLL_SECONDS``, so a run cut off from outside still
 leaves the last checkpoint's weights (the trainers write one each minute). Output file names
 are flat (``gar_64.pt``, ``inverter_64.pt``, ...) and few, as the device tool returns at most
