@@ -71,7 +71,7 @@ class ClassicalRenderer(RendererBase):
     (4 ICT subjects, ``--renderer pbr``), never on james (held out): mean over the three
     conditions with ``albedo_prior`` 0.5, 1.321 mm with weight 30, 1.211 with 100, 1.148 with
     300, 1.153 with 1000; the landmark fit 1.488, the refinement without the photometric term
-    1.490 (docs/photometric.md, "Loss weights")."""
+    1.490 (docs/photometric.md, "Loss weights and the albedo prior")."""
     pixelwise = True
 
     def __init__(self, albedo=(0.7, 0.5, 0.4), light_direction=(0.3, 0.4, 1.0), ambient=0.4,
