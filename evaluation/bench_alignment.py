@@ -55,7 +55,6 @@ with torch on ``--threads`` threads (default: torch's own choice).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -64,9 +63,9 @@ import numpy as np
 
 from morphable.cli.common import add_loss_weight_argument
 from morphable.errors import FitError, InputError, one_line_errors
-from morphable.io.atomic import atomic_path
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
+from .bench_report import write_report
 from .peers_3ddfa import add_dir_argument, unavailable
 
 __all__ = ["METHODS", "NETWORK_METHODS", "PEER_METHODS", "REFINED", "REFINEMENTS", "YAW_BINS", "data_root", "refiner",
@@ -458,11 +457,7 @@ def main(argv=None):
         report["aflw2000"] = _aflw2000(a.methods, root, a.n, model, a.boxes, a.ddfa_dir, **refine)
     if "300w" in a.set:
         report["300w"] = _300w(a.methods, root, a.n, model, a.boxes, a.ddfa_dir, **refine)
-    a.report.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(a.report) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
-    print(format_tables(report))
-    print(f"\nwrote {a.report}")
+    write_report(a.report, report, format_tables(report))
     return 0
 
 

@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import InputError, one_line_errors
-from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from morphable.metrics import umeyama
 
 from .bench_alignment import data_root
+from .bench_report import write_report
 
 __all__ = ["TEST_PEOPLE", "render_faces", "fit_ridge", "predict", "rms_error", "synthetic_table",
            "london_table", "james_table", "main"]
@@ -303,10 +303,7 @@ def main(argv=None):
         lines += ["", "| james vs scan (mm) | left photo | right photo | both |", "|---|---|---|---|"]
         lines += [f"| {k} | {r['left']:.2f} | {r['right']:.2f} | {r['both']:.2f} |"
                   for k, r in report["james"].items()]
-    a.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(a.report, report)
-    print("\n".join(lines))
-    print(f"\nwrote {a.report}")
+    write_report(a.report, report, "\n".join(lines))
     return 0
 
 

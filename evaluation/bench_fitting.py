@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import subprocess
 import sys
@@ -58,7 +57,7 @@ from morphable.fitting import fit_landmarks, landmark_bank, simulate_landmarks
 from morphable.fitting.correspondences import (Correspondences, across_outline, outline_points,
                                                slide_contours)
 from morphable.fitting.schemes import load_scheme
-from morphable.io.atomic import atomic_path
+from morphable.io.atomic import write_json
 from morphable.ibug68 import JAW
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 from morphable.metrics import umeyama
@@ -305,8 +304,7 @@ def sweep(model, samples, eos_fitter, folder, seed, sigma=1.0):
         result["eos"] = {"ms": float(np.median(cpu)), "wall_ms": float(np.median(times)),
                          "mean_mm": float(np.mean(errs))}
     # not error_vs_runtime.*: evaluation.report writes those (the README's figure)
-    with atomic_path(folder / "fitting_error_vs_runtime.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=1))
+    write_json(folder / "fitting_error_vs_runtime.json", result)
     from evaluation.plots import fitting_sweep
 
     fitting_sweep(result, folder / "fitting_error_vs_runtime.png")
@@ -505,8 +503,7 @@ def main(argv=None):
         model = load_model("sfm")
         report["load"] = load_table(model, None if a.no_eos else EosFitter(), a.landmarks,
                                     a.load, n=a.load_n, seed=a.seed)
-    with atomic_path(a.report) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(a.report, report)
     print(f"\nwrote {a.report}")
 
 

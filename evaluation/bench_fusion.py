@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import sys
 from pathlib import Path
 from unittest import mock
@@ -39,7 +38,7 @@ from unittest import mock
 import numpy as np
 
 from morphable.errors import FitError, one_line_errors
-from morphable.io.atomic import atomic_path
+from morphable.io.atomic import write_json
 
 __all__ = ["RULES", "rule", "main"]
 
@@ -151,8 +150,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     report = _packs(args)
     if args.report:
-        with atomic_path(Path(args.report)) as tmp:
-            tmp.write_text(json.dumps(report, indent=1))
+        write_json(args.report, report)
         print(f"\nwrote {args.report}")
     return 0
 

@@ -29,11 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from morphable.errors import FitError, InputError, one_line_errors
-from morphable.io.atomic import write_json
 from morphable.logs import add_verbosity_arguments, configure, verbosity
 
 from .bench_alignment import add_refine_arguments, data_root, refine_options, refined_methods, refiner
 from .bench_fitting import similarity_error
+from .bench_report import write_report
 
 __all__ = ["METHODS", "NETWORK_METHODS", "REFINED", "london_pairs", "identity_meshes", "consistency", "main"]
 
@@ -163,10 +163,7 @@ def main(argv=None):
                      f"{f(row['identification_rate'], '{:.1%}')} | "
                      f"{f(row['not_in_calibration']['identification_rate'], '{:.1%}')} | {row['failures']} | "
                      f"{f(row['median_ms'], '{:.0f}')} |")
-    a.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(a.report, report)
-    print("\n".join(lines))
-    print(f"\nwrote {a.report}")
+    write_report(a.report, report, "\n".join(lines))
     return 0
 
 
